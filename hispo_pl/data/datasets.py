@@ -1,0 +1,296 @@
+"""Expert datasets as real Minari datasets: generated locally by our experts, or D4RL ids.
+
+Datasets are stored once per maze, in the normal variant; a task's variant is applied to the
+arrays at load time by the same pure transforms the env wrapper uses.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from .tasks import FAMILIES, Task, parse_task, transform_action, transform_observation
+
+NAMESPACE = "hispo"
+DATASET_VERSION = 0
+DEFAULT_NOISE = 0.2
+DEFAULT_SEED = 0
+
+
+class DatasetNotFoundError(FileNotFoundError):
+    """A dataset that is neither stored locally nor downloadable; says how to make one."""
+
+
+def local_dataset_id(name: str) -> str:
+    """Minari id of our locally generated dataset for a maze, e.g. ``hispo/pointmaze-umaze-expert-v0``."""
+    return f"{NAMESPACE}/{name}-expert-v{DATASET_VERSION}"
+
+
+def dataset_path(dataset_id: str) -> Path:
+    from minari.storage import get_dataset_path
+
+    return Path(get_dataset_path(dataset_id))
+
+
+def dataset_exists(dataset_id: str) -> bool:
+    return (dataset_path(dataset_id) / "data").exists()
+
+
+@dataclass(frozen=True)
+class EpisodeArrays:
+    """All episodes of a dataset as flat arrays, one row per observation.
+
+    An episode of T steps has T + 1 rows (the final observation has a zero action); only
+    ``sample_index`` rows carry an action. ``episode_end[i]`` is the last row of row i's episode,
+    which is what HER needs to relabel goals with index arithmetic alone.
+    """
+
+    observations: np.ndarray  # [N, obs_dim] float32, proprioceptive features
+    positions: np.ndarray  # [N, goal_dim] float32, achieved goal (maze coordinates)
+    actions: np.ndarray  # [N, action_dim] float32
+    episode_end: np.ndarray  # [N] int64
+    sample_index: np.ndarray  # [M] int64, rows with an action
+
+    @property
+    def n_episodes(self) -> int:
+        return int(len(np.unique(self.episode_end)))
+
+    def for_task(self, task: Task) -> EpisodeArrays:
+        """The arrays as an agent in ``task``'s variant sees them."""
+        return replace(
+            self,
+            observations=transform_observation(task, self.observations),
+            actions=transform_action(task, self.actions),
+        )
+
+    def head(self, episodes: int) -> EpisodeArrays:
+        """The first ``episodes`` episodes."""
+        ends = np.unique(self.episode_end)
+        if episodes >= len(ends):
+            return self
+        stop = int(ends[episodes - 1]) + 1
+        return EpisodeArrays(
+            self.observations[:stop],
+            self.positions[:stop],
+            self.actions[:stop],
+            self.episode_end[:stop],
+            self.sample_index[self.sample_index < stop],
+        )
+
+
+def episodes_to_arrays(episodes) -> EpisodeArrays:
+    """Flatten Minari episodes (dict observations with ``observation`` and ``achieved_goal``)."""
+    obs, pos, act, end, idx = [], [], [], [], []
+    start = 0
+    for ep in episodes:
+        o = np.asarray(ep.observations["observation"], dtype=np.float32)
+        n = len(o)  # T + 1
+        a = np.zeros((n, np.asarray(ep.actions).shape[-1]), dtype=np.float32)
+        a[: n - 1] = ep.actions
+        obs.append(o)
+        pos.append(np.asarray(ep.observations["achieved_goal"], dtype=np.float32))
+        act.append(a)
+        end.append(np.full(n, start + n - 1, dtype=np.int64))
+        idx.append(np.arange(start, start + n - 1, dtype=np.int64))
+        start += n
+    if not obs:
+        raise ValueError("dataset has no episodes")
+    return EpisodeArrays(*(np.concatenate(x) for x in (obs, pos, act, end, idx)))
+
+
+def load_episodes(source: str | Task, *, generate_if_missing: bool = True) -> EpisodeArrays:
+    """Episodes of a task's maze (our local dataset, generated on first use) or of any Minari id.
+
+    ``source`` is a task (spec), or a Minari id such as ``D4RL/pointmaze/umaze-v2`` which is
+    downloaded when online. Variants are not applied here: see :meth:`EpisodeArrays.for_task`.
+    """
+    import minari
+
+    if isinstance(source, Task) or "/" not in source:
+        task = parse_task(source)
+        dataset_id = local_dataset_id(task.dataset_name)
+        if not dataset_exists(dataset_id):
+            if not generate_if_missing:
+                raise DatasetNotFoundError(
+                    f"dataset {dataset_id} not found under {dataset_path('')}; create it with\n"
+                    f"  hispo-pl data generate {task.dataset_name}"
+                )
+            generate_dataset(task.dataset_name)
+        ds = minari.load_dataset(dataset_id)
+        return episodes_to_arrays(ds.iterate_episodes()).head(task.episodes)
+    dataset_id = source
+    if not dataset_exists(dataset_id):
+        try:
+            ds = minari.load_dataset(dataset_id, download=True)
+        except Exception as err:  # no network, unknown id, remote down
+            raise DatasetNotFoundError(
+                f"Minari dataset {dataset_id} is not stored under {dataset_path('')} and could not "
+                f"be downloaded ({type(err).__name__}: {err}).\nOffline, generate local expert "
+                "data instead, e.g.\n  hispo-pl data generate pointmaze-umaze\nand name the task "
+                "(pointmaze-umaze-N[500]) rather than the remote id."
+            ) from err
+    else:
+        ds = minari.load_dataset(dataset_id)
+    return episodes_to_arrays(ds.iterate_episodes())
+
+
+# --- generation --------------------------------------------------------------------------
+
+
+def _goal_stats(goals: np.ndarray, reached: np.ndarray, limit: int) -> tuple[int, int]:
+    """Goals reached, and goals failed (not reached within ``limit`` steps of being set, with
+    that deadline inside the episode); goals whose deadline falls after the cut are undecided."""
+    changes = np.flatnonzero(np.any(goals[1:] != goals[:-1], axis=-1)) + 1
+    starts = np.concatenate([[0], changes])
+    n_steps = len(reached)
+    ok = failed = 0
+    for s in starts:
+        window = reached[s : min(s + limit, n_steps)]
+        if window.any():
+            ok += 1
+        elif s + limit <= n_steps:
+            failed += 1
+    return ok, failed
+
+
+def collect_episode(env, expert, rng: np.random.Generator, seed: int, noise: float, steps: int):
+    """One continuing episode of ``steps`` steps from a random start cell; new goal cells are
+    drawn by the env whenever the current one is reached. Returns a dict of arrays."""
+    from ..envs.mazes import free_cells, maze_array
+
+    cells = free_cells(maze_array(env))
+    i, j = rng.choice(len(cells), size=2, replace=False)
+    obs, _ = env.reset(seed=seed, options={"reset_cell": cells[i], "goal_cell": cells[j]})
+    keys = ("observation", "achieved_goal", "desired_goal")
+    record = {k: [obs[k]] for k in keys}
+    actions, rewards, success = [], [], []
+    low, high = env.action_space.low, env.action_space.high
+    for _ in range(steps):
+        action = expert.act(obs)
+        action = np.clip(action + noise * rng.standard_normal(action.shape), low, high)
+        goal_before = obs["desired_goal"]
+        obs, reward, _, _, info = env.step(action)
+        reached = bool(np.linalg.norm(obs["achieved_goal"] - goal_before) <= 0.45)
+        for k in keys:
+            record[k].append(obs[k])
+        actions.append(action)
+        rewards.append(reward)
+        success.append(reached)
+    out = {k: np.asarray(v) for k, v in record.items()}
+    out["actions"] = np.asarray(actions, dtype=np.float32)
+    out["rewards"] = np.asarray(rewards, dtype=np.float64)
+    out["reached"] = np.asarray(success)
+    return out
+
+
+def make_expert(name: str, env):
+    """The scripted expert of a dataset family."""
+    family = name.split("-")[0]
+    if family == "pointmaze":
+        from ..envs.experts import PointMazeExpert
+
+        return PointMazeExpert(env)
+    raise NotImplementedError(f"no expert for family {family!r} yet")
+
+
+def generate_dataset(
+    name: str,
+    *,
+    episodes: int = 500,
+    seed: int = DEFAULT_SEED,
+    noise: float = DEFAULT_NOISE,
+    overwrite: bool = False,
+    progress: bool = True,
+) -> str:
+    """Collect ``episodes`` expert episodes of maze ``name`` (``pointmaze-umaze``) and store them
+    as the Minari dataset ``hispo/<name>-expert-v0``. Returns the dataset id.
+
+    Collection is resumable: each episode is seeded by (seed, index) and staged to disk as soon as
+    it is done, so an interrupted run continues where it stopped with identical data.
+    """
+    import minari
+    from minari.data_collector import EpisodeBuffer
+
+    from ..envs import make_env
+
+    task = parse_task(name)
+    name = task.dataset_name
+    dataset_id = local_dataset_id(name)
+    if dataset_exists(dataset_id):
+        if not overwrite:
+            return dataset_id
+        minari.delete_dataset(dataset_id)
+    steps = task.defaults.max_episode_steps
+    env = make_env(name, continuing_task=True, reset_target=True)
+    expert = make_expert(name, env)
+    staging = dataset_path("") / ".staging" / f"{name}-seed{seed}-noise{noise}"
+    staging.mkdir(parents=True, exist_ok=True)
+    ok = failed = 0
+    for k in tqdm(range(episodes), desc=f"collecting {name}", disable=not progress, unit="ep"):
+        path = staging / f"ep_{k:05d}.npz"
+        if not path.exists():
+            rng = np.random.default_rng([seed, k])
+            ep = collect_episode(env, expert, rng, seed * 1_000_003 + k, noise, steps)
+            tmp = path.with_suffix(".tmp.npz")
+            np.savez(tmp, **ep)
+            tmp.replace(path)
+    buffers = []
+    for k in range(episodes):
+        ep = dict(np.load(staging / f"ep_{k:05d}.npz"))
+        r_ok, r_failed = _goal_stats(ep["desired_goal"][:-1], ep["reached"], steps)
+        ok, failed = ok + r_ok, failed + r_failed
+        n = len(ep["actions"])
+        buffers.append(
+            EpisodeBuffer(
+                id=k,
+                seed=seed * 1_000_003 + k,
+                observations={key: ep[key] for key in ("observation", "achieved_goal", "desired_goal")},
+                actions=ep["actions"],
+                rewards=list(ep["rewards"]),
+                terminations=[False] * n,
+                truncations=[False] * (n - 1) + [True],
+            )
+        )
+    success = ok / max(ok + failed, 1)
+    stats = {"goals_reached": ok, "goals_failed": failed, "goal_success": success}
+    minari.create_dataset_from_buffers(
+        dataset_id=dataset_id,
+        buffer=buffers,
+        env=env.spec,
+        eval_env=make_env(name).spec,
+        author_email="hispo-pl@users.noreply.github.com",
+        algorithm_name=expert.name,
+        author="hispo-pl",
+        code_permalink="https://github.com/hispo-pl/hispo-pl",
+        description=(
+            f"{episodes} continuing episodes of {steps} steps on {task.env_id}, collected by the "
+            f"scripted expert '{expert.name}' (BFS over maze cells + PD to the next waypoint) "
+            f"with Gaussian action noise std {noise}, seed {seed}; a new goal cell is drawn each "
+            f"time the goal is reached. Expert goal success: {ok}/{ok + failed} = {success:.4f} "
+            f"(a goal fails if not reached within {steps} steps). Stats: {json.dumps(stats)}"
+        ),
+    )
+    shutil.rmtree(staging, ignore_errors=True)
+    return dataset_id
+
+
+def dataset_stats(dataset_id: str) -> dict:
+    """Metadata of a stored dataset (episodes, steps, description)."""
+    import minari
+
+    ds = minari.load_dataset(dataset_id)
+    return {
+        "id": dataset_id,
+        "episodes": ds.total_episodes,
+        "steps": ds.total_steps,
+        "description": ds.storage.metadata.get("description", ""),
+    }
+
+
+def known_dataset_names() -> list[str]:
+    return [f"{f}-{m}" for f, fam in FAMILIES.items() for m in fam.mazes]

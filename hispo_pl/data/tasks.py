@@ -1,0 +1,204 @@
+"""Task specs and named streams, written the way the paper writes them.
+
+A task spec is ``<family>-<maze>[-<variant>][[<episodes>]]``, e.g. ``pointmaze-umaze-PO[500]``:
+PointMaze, U-maze, permuted observations, 500 expert episodes. Variant defaults to ``N``
+and episodes to 500. A stream is a named list of task specs (``pointmaze-1``).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+VARIANTS: dict[str, str] = {
+    "N": "normal: no change",
+    "IA": "inverted actions: every action entry negated",
+    "IO": "inverted observations: every observation feature negated",
+    "PA": "permuted actions: cyclic shift by one actuator group (one leg for the ant)",
+    "PO": "permuted observations: cyclic shift of the observation features by one",
+}
+
+
+@dataclass(frozen=True)
+class MazeDefaults:
+    """Per-maze defaults: gymnasium-robotics name, rollout step limit, HER settings."""
+
+    env_name: str
+    max_episode_steps: int
+    waysteps: int
+    her_temperature: float
+
+
+@dataclass(frozen=True)
+class Family:
+    """An environment family (PointMaze, AntMaze) and everything that differs between them."""
+
+    name: str
+    env_id: str  # format string over the maze's env_name
+    obs_dim: int
+    action_dim: int
+    goal_dim: int
+    action_group: int  # entries per actuator group: PA shifts the actions by this much
+    mazes: dict[str, MazeDefaults]
+    env_kwargs: dict = field(default_factory=dict)
+
+
+FAMILIES: dict[str, Family] = {
+    "pointmaze": Family(
+        name="pointmaze",
+        env_id="PointMaze_{}-v3",
+        obs_dim=4,
+        action_dim=2,
+        goal_dim=2,
+        action_group=1,
+        mazes={
+            "umaze": MazeDefaults("UMaze", 300, waysteps=50, her_temperature=100.0),
+            "medium": MazeDefaults("Medium", 600, waysteps=25, her_temperature=75.0),
+            "large": MazeDefaults("Large", 800, waysteps=25, her_temperature=100.0),
+        },
+    ),
+    "antmaze": Family(
+        name="antmaze",
+        env_id="AntMaze_{}-v5",
+        obs_dim=27,
+        action_dim=8,
+        goal_dim=2,
+        action_group=2,
+        mazes={
+            "umaze": MazeDefaults("UMaze", 700, waysteps=10, her_temperature=50.0),
+            "medium": MazeDefaults("Medium", 1000, waysteps=15, her_temperature=50.0),
+            "large": MazeDefaults("Large", 1000, waysteps=15, her_temperature=50.0),
+        },
+        env_kwargs={"include_cfrc_ext_in_observation": False},
+    ),
+}
+
+DEFAULT_EPISODES = 500
+
+_SPEC_RE = re.compile(
+    r"^(?P<family>[a-z]+)-(?P<maze>[a-z]+)(?:-(?P<variant>[A-Z]+))?(?:\[(?P<episodes>\d+)\])?$"
+)
+
+GRAMMAR = (
+    "task spec grammar: <family>-<maze>[-<variant>][[<episodes>]]\n"
+    f"  family   : {' | '.join(FAMILIES)}\n"
+    "  maze     : umaze | medium | large\n"
+    f"  variant  : {' | '.join(VARIANTS)} (default N)\n"
+    f"  episodes : positive integer (default {DEFAULT_EPISODES})\n"
+    "  examples : pointmaze-umaze, pointmaze-umaze-PO[500], antmaze-large-IA[100]"
+)
+
+
+class TaskSpecError(ValueError):
+    """A task spec or stream name that does not parse; the message shows the grammar."""
+
+
+@dataclass(frozen=True)
+class Task:
+    """One task of a stream: an environment family, a maze, a variant and a dataset size."""
+
+    family: str
+    maze: str
+    variant: str = "N"
+    episodes: int = DEFAULT_EPISODES
+
+    @property
+    def spec(self) -> str:
+        return f"{self.family}-{self.maze}-{self.variant}[{self.episodes}]"
+
+    @property
+    def env_family(self) -> Family:
+        return FAMILIES[self.family]
+
+    @property
+    def defaults(self) -> MazeDefaults:
+        return FAMILIES[self.family].mazes[self.maze]
+
+    @property
+    def env_id(self) -> str:
+        return self.env_family.env_id.format(self.defaults.env_name)
+
+    @property
+    def dataset_name(self) -> str:
+        """Datasets are stored once per maze, in the normal variant."""
+        return f"{self.family}-{self.maze}"
+
+    def __str__(self) -> str:
+        return self.spec
+
+
+def parse_task(spec: str | Task) -> Task:
+    """Parse ``pointmaze-umaze-PO[500]`` into a :class:`Task`; raise with the grammar if malformed."""
+    if isinstance(spec, Task):
+        return spec
+    m = _SPEC_RE.match(spec.strip())
+    if m is None:
+        raise TaskSpecError(f"malformed task spec {spec!r}\n{GRAMMAR}")
+    family, maze = m["family"], m["maze"]
+    variant = m["variant"] or "N"
+    episodes = int(m["episodes"]) if m["episodes"] else DEFAULT_EPISODES
+    if family not in FAMILIES:
+        raise TaskSpecError(f"unknown family {family!r} in {spec!r}\n{GRAMMAR}")
+    if maze not in FAMILIES[family].mazes:
+        raise TaskSpecError(f"unknown maze {maze!r} in {spec!r}\n{GRAMMAR}")
+    if variant not in VARIANTS:
+        raise TaskSpecError(f"unknown variant {variant!r} in {spec!r}\n{GRAMMAR}")
+    if episodes <= 0:
+        raise TaskSpecError(f"episodes must be positive in {spec!r}\n{GRAMMAR}")
+    return Task(family, maze, variant, episodes)
+
+
+_STREAM_SHAPES: dict[str, list[tuple[str, str]]] = {
+    "1": [("umaze", "N"), ("large", "N"), ("umaze", "PO"), ("medium", "IO")],
+    "2": [("umaze", "PA"), ("medium", "PO"), ("medium", "N"), ("medium", "N")],
+}
+
+STREAMS: dict[str, list[str]] = {
+    f"{family}-{k}": [f"{family}-{maze}-{variant}[{DEFAULT_EPISODES}]" for maze, variant in shape]
+    for family in ("pointmaze", "antmaze")
+    for k, shape in _STREAM_SHAPES.items()
+}
+
+
+def parse_stream(stream: str | list[str]) -> list[Task]:
+    """A stream name (``pointmaze-1``) or an explicit list of task specs, as tasks."""
+    if isinstance(stream, str):
+        if stream not in STREAMS:
+            raise TaskSpecError(
+                f"unknown stream {stream!r}; known streams: {', '.join(sorted(STREAMS))}, "
+                "or give a list of task specs"
+            )
+        stream = STREAMS[stream]
+    return [parse_task(s) for s in stream]
+
+
+# --- variants: the same pure transforms serve the env wrapper and the dataset -------------
+
+
+def transform_observation(task: Task, obs: np.ndarray) -> np.ndarray:
+    """The observation features the agent sees in ``task`` given the normal ones (last axis)."""
+    if task.variant == "IO":
+        return -obs
+    if task.variant == "PO":
+        return np.roll(obs, 1, axis=-1)
+    return obs
+
+
+def transform_action(task: Task, action: np.ndarray) -> np.ndarray:
+    """The action an agent must output in ``task`` to produce the normal ``action``."""
+    if task.variant == "IA":
+        return -action
+    if task.variant == "PA":
+        return np.roll(action, task.env_family.action_group, axis=-1)
+    return action
+
+
+def untransform_action(task: Task, action: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`transform_action`: the normal action an agent's output produces."""
+    if task.variant == "IA":
+        return -action
+    if task.variant == "PA":
+        return np.roll(action, -task.env_family.action_group, axis=-1)
+    return action
