@@ -20,6 +20,7 @@ NAMESPACE = "hispo"
 DATASET_VERSION = 0
 DEFAULT_NOISE = 0.2
 DEFAULT_SEED = 0
+DEFAULT_EPISODES = 500
 
 
 class DatasetNotFoundError(FileNotFoundError):
@@ -120,9 +121,15 @@ def load_episodes(source: str | Task, *, generate_if_missing: bool = True) -> Ep
                     f"dataset {dataset_id} not found under {dataset_path('')}; create it with\n"
                     f"  hispo-pl data generate {task.dataset_name}"
                 )
-            generate_dataset(task.dataset_name)
+            generate_dataset(task.dataset_name, episodes=max(task.episodes, DEFAULT_EPISODES))
         ds = minari.load_dataset(dataset_id)
-        return episodes_to_arrays(ds.iterate_episodes()).head(task.episodes)
+        if ds.total_episodes < task.episodes:
+            raise DatasetNotFoundError(
+                f"{task} asks for {task.episodes} episodes but {dataset_id} holds "
+                f"{ds.total_episodes}; regenerate it with\n  hispo-pl data generate "
+                f"{task.dataset_name} --episodes {task.episodes} --overwrite"
+            )
+        return episodes_to_arrays(ds.iterate_episodes(range(task.episodes)))
     dataset_id = source
     if not dataset_exists(dataset_id):
         try:
@@ -201,7 +208,7 @@ def make_expert(name: str, env):
 def generate_dataset(
     name: str,
     *,
-    episodes: int = 500,
+    episodes: int = DEFAULT_EPISODES,
     seed: int = DEFAULT_SEED,
     noise: float = DEFAULT_NOISE,
     overwrite: bool = False,

@@ -1,0 +1,36 @@
+# Two commands on a fresh machine (Python >= 3.10):
+#   make demo   - create .venv if missing, generate PointMaze U-maze expert data, train HBC, print success
+#   make test   - create .venv if missing, run the test suite
+# On a CPU-only machine torch is pinned to the local CPU build (a looser pin pulls CUDA wheels);
+# pyproject keeps the range open for users. Override with `make TORCH_PIN=torch==X.Y.Z`.
+PYTHON ?= python3
+VENV ?= .venv
+TORCH_PIN ?= torch==2.13.0
+BIN := $(VENV)/bin
+
+.PHONY: demo test test-all lint bench clean
+
+$(BIN)/hispo-pl: pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q "$(TORCH_PIN)"
+	$(BIN)/python -m pip install -q -e ".[dev]"
+	touch $(BIN)/hispo-pl
+
+demo: $(BIN)/hispo-pl
+	$(BIN)/hispo-pl fit --config configs/quickstart.yaml
+
+test: $(BIN)/hispo-pl
+	$(BIN)/python -m pytest -q
+
+test-all: $(BIN)/hispo-pl
+	$(BIN)/python -m pytest -q -m "slow or not slow"
+
+lint: $(BIN)/hispo-pl
+	$(BIN)/ruff check .
+
+bench: $(BIN)/hispo-pl
+	$(BIN)/python benchmarks/throughput.py
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache

@@ -1,0 +1,90 @@
+"""LightningDataModule for one task: load (or generate) its expert data, serve HER batches."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import lightning as L
+import torch
+from torch.utils.data import DataLoader, IterableDataset
+
+from .datasets import EpisodeArrays, load_episodes
+from .sampler import HERConfig, HERSampler, Strategy
+from .tasks import Task, parse_task
+
+
+class _Batches(IterableDataset):
+    """An endless-looking stream of ready-made batches (``steps`` per epoch)."""
+
+    def __init__(self, sampler: HERSampler, steps: int):
+        self.sampler, self.steps = sampler, steps
+
+    def __len__(self) -> int:
+        return self.steps
+
+    def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
+        for _ in range(self.steps):
+            yield self.sampler.sample()
+
+
+class TaskDataModule(L.LightningDataModule):
+    """Expert data of one task, relabelled by HER, as batches of ``batch_size``.
+
+    Args:
+        task: task spec, e.g. ``pointmaze-umaze-N[500]`` (variant applied to the data).
+        dataset: a Minari id to read instead of our local data for the task's maze, e.g.
+            ``D4RL/pointmaze/umaze-v2`` (downloaded when online).
+        batch_size: samples per gradient step.
+        waysteps: subgoal distance; default per maze from the paper.
+        her_temperature: mean goal offset (steps); default per maze from the paper.
+        her_strategy: exponential | uniform | geometric.
+        steps_per_epoch: batches per epoch (Trainer's ``max_steps`` bounds the total).
+        seed: sampler seed.
+    """
+
+    def __init__(
+        self,
+        task: str = "pointmaze-umaze-N[500]",
+        dataset: str | None = None,
+        batch_size: int = 1024,
+        waysteps: int | None = None,
+        her_temperature: float | None = None,
+        her_strategy: Strategy = "exponential",
+        steps_per_epoch: int = 1000,
+        seed: int = 0,
+    ):
+        super().__init__()
+        self.task: Task = parse_task(task)
+        self.dataset = dataset
+        self.batch_size = batch_size
+        self.her = HERConfig(
+            waysteps=waysteps if waysteps is not None else self.task.defaults.waysteps,
+            temperature=her_temperature if her_temperature is not None else self.task.defaults.her_temperature,
+            strategy=her_strategy,
+        )
+        self.steps_per_epoch = steps_per_epoch
+        self.seed = seed
+        self.data: EpisodeArrays | None = None
+
+    @property
+    def obs_dim(self) -> int:
+        return self.task.env_family.obs_dim
+
+    @property
+    def action_dim(self) -> int:
+        return self.task.env_family.action_dim
+
+    @property
+    def goal_dim(self) -> int:
+        return self.task.env_family.goal_dim
+
+    def prepare_data(self) -> None:
+        load_episodes(self.dataset or self.task)  # generates our local data on first use
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.data is None:
+            self.data = load_episodes(self.dataset or self.task).for_task(self.task)
+
+    def train_dataloader(self) -> DataLoader:
+        sampler = HERSampler(self.data, self.her, self.batch_size, seed=self.seed)
+        return DataLoader(_Batches(sampler, self.steps_per_epoch), batch_size=None, num_workers=0)

@@ -1,0 +1,83 @@
+"""Goal-relabelling (HER) sampler: batches for hierarchical BC by index arithmetic alone."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import torch
+
+from .datasets import EpisodeArrays
+
+Strategy = Literal["exponential", "uniform", "geometric"]
+
+
+@dataclass(frozen=True)
+class HERConfig:
+    """How goals and subgoals are relabelled."""
+
+    waysteps: int = 50
+    """Subgoal distance k: the subgoal is the position k steps ahead (±``jitter``)."""
+    temperature: float = 100.0
+    """Mean of the exponential goal offset (steps) for the ``exponential`` strategy."""
+    strategy: Strategy = "exponential"
+    """exponential: offset ~ Exp(temperature); uniform: U{i..end}; geometric: Geom(1/temperature)."""
+    jitter: int = 2
+    """Subgoal index jitter, uniform in {-jitter..jitter}."""
+
+
+def relabel_indices(
+    index: np.ndarray, episode_end: np.ndarray, cfg: HERConfig, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Goal and subgoal row for each sampled row ``index``, clipped to its episode.
+
+    goal j = clip(i + offset, i, end) with the offset drawn by ``cfg.strategy``;
+    subgoal j' = clip(i + waysteps + U{-jitter..jitter}, i, end).
+    """
+    end = episode_end[index]
+    n = len(index)
+    if cfg.strategy == "exponential":
+        offset = np.rint(rng.exponential(cfg.temperature, n)).astype(np.int64)
+    elif cfg.strategy == "geometric":
+        offset = rng.geometric(1.0 / max(cfg.temperature, 1.0), n).astype(np.int64)
+    elif cfg.strategy == "uniform":
+        offset = (rng.random(n) * (end - index + 1)).astype(np.int64)
+    else:
+        raise ValueError(f"unknown HER strategy {cfg.strategy!r}")
+    goal = np.minimum(index + offset, end)
+    jitter = rng.integers(-cfg.jitter, cfg.jitter + 1, n)
+    subgoal = np.clip(index + cfg.waysteps + jitter, index, end)
+    return goal, subgoal
+
+
+class HERSampler:
+    """Draws relabelled batches from one task's episodes.
+
+    Each batch is a dict of float32 tensors: ``observation`` [B, obs], ``position`` [B, 2],
+    ``goal`` [B, 2] (a future achieved position), ``subgoal`` [B, 2] (``waysteps`` ahead)
+    and ``action`` [B, act].
+    """
+
+    def __init__(self, data: EpisodeArrays, cfg: HERConfig, batch_size: int = 1024, seed: int = 0):
+        self.cfg = cfg
+        self.batch_size = batch_size
+        self.rng = np.random.default_rng(seed)
+        self._obs = torch.from_numpy(np.ascontiguousarray(data.observations, dtype=np.float32))
+        self._pos = torch.from_numpy(np.ascontiguousarray(data.positions, dtype=np.float32))
+        self._act = torch.from_numpy(np.ascontiguousarray(data.actions, dtype=np.float32))
+        self._end = data.episode_end
+        self._index = data.sample_index
+
+    def sample(self, batch_size: int | None = None) -> dict[str, torch.Tensor]:
+        n = batch_size or self.batch_size
+        i = self._index[self.rng.integers(0, len(self._index), n)]
+        goal, subgoal = relabel_indices(i, self._end, self.cfg, self.rng)
+        i, goal, subgoal = (torch.from_numpy(x) for x in (i, goal, subgoal))
+        return {
+            "observation": self._obs[i],
+            "position": self._pos[i],
+            "goal": self._pos[goal],
+            "subgoal": self._pos[subgoal],
+            "action": self._act[i],
+        }

@@ -1,0 +1,106 @@
+"""Deterministic rollout evaluation, vectorised over episodes: one policy call per step."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from .data.tasks import Task, parse_task
+from .envs import make_env
+from .envs.mazes import free_cells, maze_array
+
+PolicyFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
+"""(observation [B, obs], position [B, 2], goal [B, 2]) -> action [B, act], deterministic."""
+
+
+@dataclass(frozen=True)
+class RolloutResult:
+    success: float
+    episode_length: float
+    episodes: int
+    successes: np.ndarray  # [episodes] bool
+    lengths: np.ndarray  # [episodes] int
+
+
+def start_goal_cells(grid: np.ndarray, episodes: int, seed: int) -> np.ndarray:
+    """Seeded random (start, goal) pairs of distinct free cells, shape [episodes, 2, 2]."""
+    cells = free_cells(grid)
+    rng = np.random.default_rng(seed)
+    pick = np.stack([rng.choice(len(cells), 2, replace=False) for _ in range(episodes)])
+    return cells[pick]
+
+
+class RolloutEvaluator:
+    """Runs a policy on a task for ``episodes`` seeded episodes.
+
+    Environments are built once (``min(episodes, max_envs)`` of them) and reused across calls,
+    so periodic evaluation during training costs no env construction.
+    """
+
+    def __init__(self, task: str | Task, episodes: int = 100, seed: int = 0, max_envs: int = 100,
+                 max_episode_steps: int | None = None):
+        self.task = parse_task(task)
+        self.episodes, self.seed = episodes, seed
+        steps = max_episode_steps or self.task.defaults.max_episode_steps
+        self.envs = [make_env(self.task, max_episode_steps=steps) for _ in range(min(episodes, max_envs))]
+        self.max_steps = steps
+        self.cells = start_goal_cells(maze_array(self.envs[0]), episodes, seed)
+
+    def run(self, policy: PolicyFn, progress: bool = False) -> RolloutResult:
+        successes = np.zeros(self.episodes, dtype=bool)
+        lengths = np.zeros(self.episodes, dtype=np.int64)
+        n_envs = len(self.envs)
+        for wave in tqdm(range(0, self.episodes, n_envs), desc=f"eval {self.task}", disable=not progress):
+            ids = list(range(wave, min(wave + n_envs, self.episodes)))
+            s, l_ = self._run_wave(policy, ids)
+            successes[ids], lengths[ids] = s, l_
+        return RolloutResult(float(successes.mean()), float(lengths.mean()), self.episodes, successes, lengths)
+
+    def _run_wave(self, policy: PolicyFn, ids: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        envs = self.envs[: len(ids)]
+        obs = [
+            env.reset(seed=self.seed * 100_003 + k, options={"reset_cell": self.cells[k, 0], "goal_cell": self.cells[k, 1]})[0]
+            for env, k in zip(envs, ids)
+        ]
+        active = np.ones(len(ids), dtype=bool)
+        success = np.zeros(len(ids), dtype=bool)
+        length = np.zeros(len(ids), dtype=np.int64)
+        for _ in range(self.max_steps):
+            idx = np.flatnonzero(active)
+            if len(idx) == 0:
+                break
+            batch = {k: torch.as_tensor(np.stack([obs[i][k] for i in idx]), dtype=torch.float32)
+                     for k in ("observation", "achieved_goal", "desired_goal")}
+            actions = policy(batch["observation"], batch["achieved_goal"], batch["desired_goal"])
+            actions = actions.detach().cpu().numpy()
+            for a, i in zip(actions, idx):
+                obs[i], _, terminated, truncated, info = envs[i].step(a)
+                length[i] += 1
+                if info.get("success", False):
+                    success[i] = True
+                if terminated or truncated or success[i]:
+                    active[i] = False
+        return success, length
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
+
+def module_policy(module) -> PolicyFn:
+    """A deterministic policy function from a module with ``act(obs, pos, goal)``, in eval mode."""
+
+    def policy(observation, position, goal):
+        was_training = module.training
+        module.eval()
+        try:
+            device = next(module.parameters()).device
+            return module.act(observation.to(device), position.to(device), goal.to(device))
+        finally:
+            module.train(was_training)
+
+    return policy

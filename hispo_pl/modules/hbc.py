@@ -1,0 +1,126 @@
+"""Goal-conditioned BC policies as LightningModules: hierarchical (HBC) and flat (BC)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import lightning as L
+import torch
+from torch import Tensor
+
+from ..nn.mlp import GaussianPolicy, feature_dim, gaussian_nll, goal_features
+
+
+class GoalConditionedBC(L.LightningModule):
+    """Shared training plumbing: Adam, optional cosine schedule, loss dict logging.
+
+    Subclasses define ``losses(batch) -> dict[str, Tensor]`` (with a ``loss`` entry) and
+    ``act(observation, position, goal) -> action`` (deterministic).
+    """
+
+    def __init__(self, lr: float = 3e-4, lr_schedule: Literal["cosine", "constant"] = "cosine"):
+        super().__init__()
+        self.lr = lr
+        self.lr_schedule = lr_schedule
+
+    def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        raise NotImplementedError
+
+    def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
+        losses = self.losses(batch)
+        self.log_dict(
+            {f"train/{k}": v.detach() for k, v in losses.items()},
+            prog_bar=True,
+            batch_size=len(batch["action"]),
+        )
+        return losses["loss"]
+
+    def configure_optimizers(self):
+        params = [p for p in self.parameters() if p.requires_grad]
+        opt = torch.optim.Adam(params, lr=self.lr)
+        steps = self.trainer.max_steps if self.trainer is not None else -1
+        if self.lr_schedule == "constant" or steps is None or steps <= 0:
+            return opt
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=steps)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+    @torch.no_grad()
+    def act(self, observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
+        raise NotImplementedError
+
+
+class HBC(GoalConditionedBC):
+    """Hierarchical goal-conditioned BC.
+
+    The high policy sees [features(goal − pos), obs, pos, goal] and predicts a Gaussian over the
+    subgoal offset (subgoal − pos); the low policy sees [features(subgoal − pos), obs] (never
+    the absolute goal) and predicts a Gaussian over the action. Acting re-plans every step.
+    """
+
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int,
+        goal_dim: int = 2,
+        high_hidden: int = 64,
+        low_hidden: int = 256,
+        dropout: float = 0.1,
+        lr: float = 3e-4,
+        lr_schedule: Literal["cosine", "constant"] = "cosine",
+    ):
+        super().__init__(lr=lr, lr_schedule=lr_schedule)
+        self.save_hyperparameters()
+        f = feature_dim(goal_dim)
+        self.high = GaussianPolicy(f + obs_dim + 2 * goal_dim, high_hidden, goal_dim, dropout)
+        self.low = GaussianPolicy(f + obs_dim, low_hidden, action_dim, dropout)
+
+    @staticmethod
+    def high_input(observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
+        return torch.cat([goal_features(goal - position), observation, position, goal], dim=-1)
+
+    @staticmethod
+    def low_input(observation: Tensor, subgoal_offset: Tensor) -> Tensor:
+        return torch.cat([goal_features(subgoal_offset), observation], dim=-1)
+
+    def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        obs, pos = batch["observation"], batch["position"]
+        offset = batch["subgoal"] - pos
+        mean_h, log_std_h = self.high(self.high_input(obs, pos, batch["goal"]))
+        mean_l, log_std_l = self.low(self.low_input(obs, offset))
+        loss_high = gaussian_nll(mean_h, log_std_h, offset)
+        loss_low = gaussian_nll(mean_l, log_std_l, batch["action"])
+        return {"loss": loss_high + loss_low, "loss_high": loss_high, "loss_low": loss_low}
+
+    @torch.no_grad()
+    def act(self, observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
+        offset, _ = self.high(self.high_input(observation, position, goal))
+        action, _ = self.low(self.low_input(observation, offset))
+        return action
+
+
+class BC(GoalConditionedBC):
+    """Flat goal-conditioned BC (the paper's BC column) on the same network and inputs."""
+
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int,
+        goal_dim: int = 2,
+        hidden: int = 256,
+        dropout: float = 0.1,
+        lr: float = 3e-4,
+        lr_schedule: Literal["cosine", "constant"] = "cosine",
+    ):
+        super().__init__(lr=lr, lr_schedule=lr_schedule)
+        self.save_hyperparameters()
+        self.policy = GaussianPolicy(feature_dim(goal_dim) + obs_dim + 2 * goal_dim, hidden, action_dim, dropout)
+
+    def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        x = HBC.high_input(batch["observation"], batch["position"], batch["goal"])
+        mean, log_std = self.policy(x)
+        return {"loss": gaussian_nll(mean, log_std, batch["action"])}
+
+    @torch.no_grad()
+    def act(self, observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
+        action, _ = self.policy(HBC.high_input(observation, position, goal))
+        return action

@@ -1,0 +1,100 @@
+"""Building blocks of the hierarchical BC backbone: residual MLP, Gaussian head, goal features."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor, nn
+
+
+def goal_features(delta: Tensor, eps: float = 1e-6) -> Tensor:
+    """Direction features of a displacement: delta, its norm and its unit vector (2·d + 1)."""
+    norm = delta.norm(dim=-1, keepdim=True)
+    return torch.cat([delta, norm, delta / (norm + eps)], dim=-1)
+
+
+def feature_dim(goal_dim: int) -> int:
+    return 2 * goal_dim + 1
+
+
+def _init_linear(layer: nn.Linear, scale: float = 0.1) -> None:
+    """Variance scaling (uniform, fan_avg, small scale) with zero bias: a quiet start."""
+    fan_avg = 0.5 * (layer.in_features + layer.out_features)
+    bound = math.sqrt(3.0 * scale / fan_avg)
+    nn.init.uniform_(layer.weight, -bound, bound)
+    nn.init.zeros_(layer.bias)
+
+
+class FastDropout(nn.Module):
+    """Inverted dropout with the mask drawn from random bytes: about twice as fast as
+    ``nn.Dropout`` on CPU, where Bernoulli sampling dominates a small MLP's step. The drop
+    probability is rounded to a multiple of 1/256 (0.1 → 26/256 ≈ 0.102)."""
+
+    def __init__(self, p: float = 0.1):
+        super().__init__()
+        if not 0.0 <= p < 1.0:
+            raise ValueError(f"dropout probability must be in [0, 1), got {p}")
+        self.threshold = round(p * 256)
+        self.scale = 256.0 / (256 - self.threshold)
+
+    def forward(self, x: Tensor) -> Tensor:
+        if not self.training or self.threshold == 0:
+            return x
+        noise = torch.empty(x.shape, dtype=torch.uint8, device=x.device).random_()
+        return x * (noise >= self.threshold).to(x.dtype).mul_(self.scale)
+
+
+class ResidualMLP(nn.Module):
+    """Linear→LN→GELU→Dropout, one residual block of the same, and a bare linear head."""
+
+    def __init__(self, in_dim: int, hidden: int, out_dim: int, dropout: float = 0.1):
+        super().__init__()
+        self.inp = nn.Sequential(
+            nn.Linear(in_dim, hidden), nn.LayerNorm(hidden), nn.GELU(), FastDropout(dropout)
+        )
+        self.block = nn.Sequential(
+            nn.Linear(hidden, hidden), nn.LayerNorm(hidden), nn.GELU(), FastDropout(dropout),
+            nn.Linear(hidden, hidden), nn.LayerNorm(hidden),
+        )
+        self.out = nn.Sequential(nn.GELU(), FastDropout(dropout))
+        self.head = nn.Linear(hidden, out_dim)
+        for m in self.modules():
+            if isinstance(m, nn.Linear):
+                _init_linear(m)
+
+    def forward(self, x: Tensor) -> Tensor:
+        h = self.inp(x)
+        h = self.out(h + self.block(h))
+        return self.head(h)
+
+
+class GaussianPolicy(nn.Module):
+    """A diagonal Gaussian over ``out_dim`` values with a learned, softly clamped log-std."""
+
+    def __init__(
+        self,
+        in_dim: int,
+        hidden: int,
+        out_dim: int,
+        dropout: float = 0.1,
+        log_std_min: float = -5.0,
+        log_std_max: float = 1.0,
+    ):
+        super().__init__()
+        self.out_dim = out_dim
+        self.log_std_min, self.log_std_max = log_std_min, log_std_max
+        self.net = ResidualMLP(in_dim, hidden, 2 * out_dim, dropout)
+
+    def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        mean, raw = self.net(x).split(self.out_dim, dim=-1)
+        span = self.log_std_max - self.log_std_min
+        log_std = self.log_std_min + 0.5 * span * (torch.tanh(raw) + 1.0)
+        return mean, log_std
+
+
+def gaussian_nll(mean: Tensor, log_std: Tensor, target: Tensor) -> Tensor:
+    """Mean over the batch of the negative log-likelihood, summed over dimensions."""
+    z = (target - mean) * torch.exp(-log_std)
+    nll = 0.5 * z.pow(2) + log_std + 0.5 * math.log(2 * math.pi)
+    return nll.sum(-1).mean()
