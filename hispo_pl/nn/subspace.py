@@ -1,0 +1,297 @@
+"""Subspaces of networks: K anchors per layer, mixed in parameter space.
+
+A point of the subspace is a convex combination ``θ(α) = Σ_k α_k θ_k`` of the anchors' weights,
+biases and LayerNorm affines. Mixing the parameters (not the outputs) keeps one forward as cheap
+as a plain network's whatever K is; a batch of M points ``α`` of shape [M, K] runs as one
+``baddbmm``. Growing the subspace appends an anchor and freezes the older ones, so what was
+learned on earlier tasks stays reachable and only the newest direction trains.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Literal
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from hispo_pl.nn.mlp import FastDropout, ResidualMLP, _init_linear
+
+AnchorInit = Literal["mean", "random"]
+
+
+def sample_dirichlet(
+    n: int,
+    k: int,
+    generator: torch.Generator | None = None,
+    *,
+    device: torch.device | str | None = None,
+) -> Tensor:
+    """``n`` exact draws from Dirichlet(1, …, 1) over ``k`` anchors, shape [n, k], float32.
+
+    Stick breaking on sorted uniforms: the gaps between k-1 sorted U[0, 1] points are uniform
+    on the simplex, with no Gamma sampling and a deterministic result given ``generator``.
+    """
+    if k < 1:
+        raise ValueError(f"need at least one anchor, got k={k}")
+    if device is None and generator is not None:
+        device = generator.device
+    if k == 1:
+        return torch.ones(n, 1, device=device)
+    cuts = torch.rand(n, k - 1, generator=generator, device=device).sort(dim=1).values
+    zeros = torch.zeros(n, 1, device=cuts.device)
+    ones = torch.ones(n, 1, device=cuts.device)
+    return torch.diff(torch.cat([zeros, cuts, ones], dim=1), dim=1)
+
+
+def _check_alpha(alpha: Tensor, n_anchors: int) -> None:
+    if alpha.dim() not in (1, 2) or alpha.shape[-1] != n_anchors:
+        raise ValueError(
+            f"alpha must have shape [{n_anchors}] or [M, {n_anchors}], got {tuple(alpha.shape)}"
+        )
+
+
+class SubspaceLayer(nn.Module):
+    """Anchor bookkeeping shared by the subspace layers.
+
+    A subclass lists the names of its ``nn.ParameterList`` attributes in ``anchor_lists`` (one
+    Parameter per anchor in each, so older anchors can be frozen one by one) and says how to
+    initialise a fresh anchor in ``_fresh_anchor``.
+    """
+
+    anchor_lists: tuple[str, ...] = ()
+
+    def _fresh_anchor(self) -> tuple[Tensor, ...]:
+        """One freshly initialised tensor per entry of ``anchor_lists``."""
+        raise NotImplementedError
+
+    def _lists(self) -> list[nn.ParameterList]:
+        return [getattr(self, name) for name in self.anchor_lists]
+
+    def _init_anchors(self, n_anchors: int) -> None:
+        """Independent fresh anchors, all trainable: nothing has been learned yet to protect."""
+        if n_anchors < 1:
+            raise ValueError(f"need at least one anchor, got {n_anchors}")
+        fresh = [self._fresh_anchor() for _ in range(n_anchors)]
+        for i, name in enumerate(self.anchor_lists):
+            setattr(self, name, nn.ParameterList([nn.Parameter(f[i]) for f in fresh]))
+
+    @property
+    def n_anchors(self) -> int:
+        return len(self._lists()[0])
+
+    def anchor_vectors(self) -> Tensor:
+        """All of each anchor's parameters flattened into one row: [K, D]."""
+        rows = [
+            torch.cat([plist[k].reshape(-1) for plist in self._lists()])
+            for k in range(self.n_anchors)
+        ]
+        return torch.stack(rows)
+
+    def _set_trainable_last(self) -> None:
+        """Older anchors frozen, newest trainable: the layout while learning a new task."""
+        last = self.n_anchors - 1
+        for plist in self._lists():
+            for k, p in enumerate(plist):
+                p.requires_grad_(k == last)
+
+    @torch.no_grad()
+    def add_anchor(self, init: AnchorInit = "mean") -> None:
+        """Append an anchor (the mean of the existing ones, or a fresh init) and make it the
+        only trainable one; starting from the mean keeps the subspace's centre unchanged."""
+        if init == "mean":
+            new = [torch.stack(list(plist)).mean(0) for plist in self._lists()]
+        elif init == "random":
+            ref = self._lists()[0][0]
+            new = [t.to(device=ref.device, dtype=ref.dtype) for t in self._fresh_anchor()]
+        else:
+            raise ValueError(f"unknown anchor init {init!r}; expected 'mean' or 'random'")
+        for plist, tensor in zip(self._lists(), new, strict=True):
+            plist.append(nn.Parameter(tensor.clone()))
+        self._set_trainable_last()
+
+    def remove_last_anchor(self) -> None:
+        """Drop the newest anchor (a pruned extension); the remaining ones are all frozen."""
+        if self.n_anchors <= 1:
+            raise RuntimeError("cannot remove the only anchor of a subspace")
+        self._truncate(self.n_anchors - 1)
+        for plist in self._lists():
+            for p in plist:
+                p.requires_grad_(False)
+
+    def _truncate(self, k: int) -> None:
+        for name in self.anchor_lists:
+            setattr(self, name, nn.ParameterList(list(getattr(self, name))[:k]))
+
+    @torch.no_grad()
+    def set_n_anchors(self, k: int) -> None:
+        """Resize to ``k`` anchors (zero placeholders when growing) so that a checkpoint with
+        ``k`` anchors loads with ``load_state_dict``; the newest anchor is left trainable."""
+        if k < 1:
+            raise ValueError(f"need at least one anchor, got {k}")
+        if k < self.n_anchors:
+            self._truncate(k)
+        for plist in self._lists():
+            while len(plist) < k:
+                plist.append(nn.Parameter(torch.zeros_like(plist[0])))
+        self._set_trainable_last()
+
+
+class SubspaceLinear(SubspaceLayer):
+    """A linear layer whose weight and bias are a convex mix of K anchors."""
+
+    anchor_lists = ("weights", "biases")
+
+    def __init__(self, in_features: int, out_features: int, n_anchors: int = 1):
+        super().__init__()
+        self.in_features, self.out_features = in_features, out_features
+        self._init_anchors(n_anchors)
+
+    def _fresh_anchor(self) -> tuple[Tensor, ...]:
+        layer = nn.Linear(self.in_features, self.out_features)
+        _init_linear(layer)
+        return layer.weight.detach(), layer.bias.detach()
+
+    def forward(self, x: Tensor, alpha: Tensor) -> Tensor:
+        """alpha [K]: x [..., in] → [..., out]. alpha [M, K]: x [B, in] (shared by all M) or
+        [M, ..., in] → [M, ..., out], one batched matmul for the M mixed weights."""
+        _check_alpha(alpha, self.n_anchors)
+        weights, biases = torch.stack(list(self.weights)), torch.stack(list(self.biases))
+        if alpha.dim() == 1:
+            weight = torch.einsum("k,koi->oi", alpha, weights)
+            return F.linear(x, weight, alpha @ biases)
+        m = alpha.shape[0]
+        weight_t = torch.einsum("mk,koi->mio", alpha, weights)  # [M, in, out]
+        bias = (alpha @ biases).unsqueeze(1)  # [M, 1, out]
+        if x.dim() == 2:
+            return torch.baddbmm(bias, x.expand(m, *x.shape), weight_t)
+        if x.shape[0] != m:
+            raise ValueError(f"x has leading dim {x.shape[0]} but alpha has {m} rows")
+        out = torch.baddbmm(bias, x.reshape(m, -1, self.in_features), weight_t)
+        return out.reshape(*x.shape[:-1], self.out_features)
+
+    def extra_repr(self) -> str:
+        return (
+            f"in_features={self.in_features}, out_features={self.out_features}, "
+            f"n_anchors={self.n_anchors}"
+        )
+
+
+class SubspaceLayerNorm(SubspaceLayer):
+    """LayerNorm whose affine γ, β are a convex mix of K anchors."""
+
+    anchor_lists = ("gammas", "betas")
+
+    def __init__(self, dim: int, n_anchors: int = 1, eps: float = 1e-5):
+        super().__init__()
+        self.dim, self.eps = dim, eps
+        self._init_anchors(n_anchors)
+
+    def _fresh_anchor(self) -> tuple[Tensor, ...]:
+        return torch.ones(self.dim), torch.zeros(self.dim)
+
+    def forward(self, x: Tensor, alpha: Tensor) -> Tensor:
+        """alpha [K]: x [..., dim] → same shape. alpha [M, K]: x [B, dim] (shared by all M) or
+        [M, ..., dim] → [M, ..., dim]."""
+        _check_alpha(alpha, self.n_anchors)
+        gammas, betas = torch.stack(list(self.gammas)), torch.stack(list(self.betas))
+        if alpha.dim() == 1:
+            return F.layer_norm(x, (self.dim,), alpha @ gammas, alpha @ betas, self.eps)
+        m = alpha.shape[0]
+        normed = F.layer_norm(x, (self.dim,), eps=self.eps)
+        if x.dim() == 2:
+            normed = normed.unsqueeze(0)
+        elif x.shape[0] != m:
+            raise ValueError(f"x has leading dim {x.shape[0]} but alpha has {m} rows")
+        shape = (m,) + (1,) * (normed.dim() - 2) + (self.dim,)
+        return torch.addcmul((alpha @ betas).view(shape), normed, (alpha @ gammas).view(shape))
+
+    def extra_repr(self) -> str:
+        return f"{self.dim}, eps={self.eps}, n_anchors={self.n_anchors}"
+
+
+def subspace_layers(module: nn.Module) -> Iterator[SubspaceLayer]:
+    """Every subspace layer inside ``module`` (itself included), in registration order."""
+    return (m for m in module.modules() if isinstance(m, SubspaceLayer))
+
+
+class SubspaceResidualMLP(nn.Module):
+    """``mlp.ResidualMLP`` with every Linear and LayerNorm replaced by its subspace version:
+    Linear→LN→GELU→Dropout, a residual block, GELU→Dropout, and a bare linear head."""
+
+    def __init__(
+        self, in_dim: int, hidden: int, out_dim: int, dropout: float = 0.1, n_anchors: int = 1
+    ):
+        super().__init__()
+        self.inp_linear = SubspaceLinear(in_dim, hidden, n_anchors)
+        self.inp_norm = SubspaceLayerNorm(hidden, n_anchors)
+        self.block_linear1 = SubspaceLinear(hidden, hidden, n_anchors)
+        self.block_norm1 = SubspaceLayerNorm(hidden, n_anchors)
+        self.block_linear2 = SubspaceLinear(hidden, hidden, n_anchors)
+        self.block_norm2 = SubspaceLayerNorm(hidden, n_anchors)
+        self.head = SubspaceLinear(hidden, out_dim, n_anchors)
+        self.act = nn.GELU()
+        self.drop_inp = FastDropout(dropout)
+        self.drop_block = FastDropout(dropout)
+        self.drop_out = FastDropout(dropout)
+
+    def forward(self, x: Tensor, alpha: Tensor) -> Tensor:
+        """alpha [K]: x [B, in] → [B, out]. alpha [M, K]: x [B, in] or [M, B, in] → [M, B, out]."""
+        h = self.drop_inp(self.act(self.inp_norm(self.inp_linear(x, alpha), alpha)))
+        b = self.drop_block(self.act(self.block_norm1(self.block_linear1(h, alpha), alpha)))
+        b = self.block_norm2(self.block_linear2(b, alpha), alpha)
+        h = self.drop_out(self.act(h + b))
+        return self.head(h, alpha)
+
+    @property
+    def n_anchors(self) -> int:
+        return next(subspace_layers(self)).n_anchors
+
+    def add_anchor(self, init: AnchorInit = "mean") -> None:
+        for layer in subspace_layers(self):
+            layer.add_anchor(init)
+
+    def remove_last_anchor(self) -> None:
+        for layer in subspace_layers(self):
+            layer.remove_last_anchor()
+
+    def set_n_anchors(self, k: int) -> None:
+        for layer in subspace_layers(self):
+            layer.set_n_anchors(k)
+
+    @torch.no_grad()
+    def load_residual_mlp(self, plain: ResidualMLP, anchor: int = 0) -> None:
+        """Copy a plain ``ResidualMLP``'s parameters into one anchor (e.g. a pretrained start)."""
+        pairs: list[tuple[SubspaceLayer, nn.Module]] = [
+            (self.inp_linear, plain.inp[0]), (self.inp_norm, plain.inp[1]),
+            (self.block_linear1, plain.block[0]), (self.block_norm1, plain.block[1]),
+            (self.block_linear2, plain.block[4]), (self.block_norm2, plain.block[5]),
+            (self.head, plain.head),
+        ]
+        for layer, src in pairs:
+            first, second = layer._lists()
+            first[anchor].copy_(src.weight)
+            second[anchor].copy_(src.bias)
+
+
+def cosine_similarity_penalty(module: nn.Module) -> Tensor:
+    """Mean over subspace layers of the mean squared cosine similarity between anchor pairs.
+
+    Pushes anchors towards orthogonal directions so the subspace spans distinct behaviours;
+    in [0, 1], and 0 when no layer has two anchors.
+    """
+    per_layer = []
+    device = None
+    for layer in subspace_layers(module):
+        device = layer._lists()[0][0].device
+        k = layer.n_anchors
+        if k < 2:
+            continue
+        unit = F.normalize(layer.anchor_vectors(), dim=1)
+        cos = unit @ unit.T
+        i, j = torch.triu_indices(k, k, offset=1, device=cos.device)
+        per_layer.append(cos[i, j].pow(2).mean())
+    if not per_layer:
+        return torch.zeros((), device=device)
+    return torch.stack(per_layer).mean()
