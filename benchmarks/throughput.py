@@ -47,15 +47,24 @@ def bare_steps_per_s(model, sampler: HERSampler, n: int) -> float:
 
 def trainer_steps_per_s(model, task: str, n: int) -> float:
     dm = TaskDataModule(task, steps_per_epoch=n)
-    trainer = L.Trainer(max_steps=n, max_epochs=-1, logger=False, enable_checkpointing=False,
-                        enable_progress_bar=False, enable_model_summary=False, accelerator="cpu")
+    trainer = L.Trainer(
+        max_steps=n,
+        max_epochs=-1,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        accelerator="cpu",
+    )
     t = time.perf_counter()
     trainer.fit(model, dm)
     return n / (time.perf_counter() - t)
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--task", default="pointmaze-umaze")
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--steps", type=int, default=200)

@@ -21,8 +21,15 @@ class RolloutEvaluation(L.Callback):
         progress: show a progress bar per evaluation.
     """
 
-    def __init__(self, eval_every: int = 0, episodes: int = 100, seed: int = 0, progress: bool = False):
-        self.eval_every, self.episodes, self.seed, self.progress = eval_every, episodes, seed, progress
+    def __init__(
+        self, eval_every: int = 0, episodes: int = 100, seed: int = 0, progress: bool = False
+    ):
+        self.eval_every, self.episodes, self.seed, self.progress = (
+            eval_every,
+            episodes,
+            seed,
+            progress,
+        )
         self._evaluator: RolloutEvaluator | None = None
         self.last: dict[str, float] | None = None
 
@@ -31,8 +38,11 @@ class RolloutEvaluation(L.Callback):
         if self._evaluator is None or self._evaluator.task != task:
             self._evaluator = RolloutEvaluator(task, self.episodes, self.seed)
         result = self._evaluator.run(module_policy(pl_module), progress=self.progress)
-        self.last = {"success": result.success, "episode_length": result.episode_length,
-                     "step": trainer.global_step}
+        self.last = {
+            "success": result.success,
+            "episode_length": result.episode_length,
+            "step": trainer.global_step,
+        }
         if trainer.logger is not None:
             trainer.logger.log_metrics(
                 {"eval/success": result.success, "eval/episode_length": result.episode_length},

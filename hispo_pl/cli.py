@@ -31,7 +31,9 @@ class HispoCLI(LightningCLI):
 
     def add_arguments_to_parser(self, parser) -> None:
         parser.add_argument(
-            "--num_threads", type=int, default=0,
+            "--num_threads",
+            type=int,
+            default=0,
             help="torch.set_num_threads (0: torch default). Try 1 on a busy 2-core machine.",
         )
         for dim in ("obs_dim", "action_dim", "goal_dim"):
@@ -49,7 +51,7 @@ class HispoCLI(LightningCLI):
                 print(
                     f"[hispo-pl] {type(self.model).__name__} on {task}: success "
                     f"{100 * cb.last['success']:.1f}% over {cb.episodes} episodes, mean episode "
-                    f"length {cb.last['episode_length']:.1f}, after {cb.last['step']} gradient steps"
+                    f"length {cb.last['episode_length']:.1f}, after {cb.last['step']} steps"
                 )
                 if self.trainer.log_dir:
                     print(f"[hispo-pl] TensorBoard logs: {self.trainer.log_dir}")
@@ -70,11 +72,11 @@ def data_main(argv: list[str]) -> int:
     from .data.datasets import (
         DEFAULT_NOISE,
         DEFAULT_SEED,
+        dataset_exists,
         dataset_stats,
         generate_dataset,
         known_dataset_names,
         local_dataset_id,
-        dataset_exists,
     )
 
     parser = argparse.ArgumentParser(prog="hispo-pl data", description="Expert datasets")
@@ -90,7 +92,11 @@ def data_main(argv: list[str]) -> int:
     if args.cmd == "generate":
         for name in args.names:
             dataset_id = generate_dataset(
-                name, episodes=args.episodes, seed=args.seed, noise=args.noise, overwrite=args.overwrite
+                name,
+                episodes=args.episodes,
+                seed=args.seed,
+                noise=args.noise,
+                overwrite=args.overwrite,
             )
             print(json.dumps(dataset_stats(dataset_id), indent=2))
     else:

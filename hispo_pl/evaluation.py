@@ -41,12 +41,20 @@ class RolloutEvaluator:
     so periodic evaluation during training costs no env construction.
     """
 
-    def __init__(self, task: str | Task, episodes: int = 100, seed: int = 0, max_envs: int = 100,
-                 max_episode_steps: int | None = None):
+    def __init__(
+        self,
+        task: str | Task,
+        episodes: int = 100,
+        seed: int = 0,
+        max_envs: int = 100,
+        max_episode_steps: int | None = None,
+    ):
         self.task = parse_task(task)
         self.episodes, self.seed = episodes, seed
         steps = max_episode_steps or self.task.defaults.max_episode_steps
-        self.envs = [make_env(self.task, max_episode_steps=steps) for _ in range(min(episodes, max_envs))]
+        self.envs = [
+            make_env(self.task, max_episode_steps=steps) for _ in range(min(episodes, max_envs))
+        ]
         self.max_steps = steps
         self.cells = start_goal_cells(maze_array(self.envs[0]), episodes, seed)
 
@@ -54,17 +62,24 @@ class RolloutEvaluator:
         successes = np.zeros(self.episodes, dtype=bool)
         lengths = np.zeros(self.episodes, dtype=np.int64)
         n_envs = len(self.envs)
-        for wave in tqdm(range(0, self.episodes, n_envs), desc=f"eval {self.task}", disable=not progress):
+        for wave in tqdm(
+            range(0, self.episodes, n_envs), desc=f"eval {self.task}", disable=not progress
+        ):
             ids = list(range(wave, min(wave + n_envs, self.episodes)))
             s, l_ = self._run_wave(policy, ids)
             successes[ids], lengths[ids] = s, l_
-        return RolloutResult(float(successes.mean()), float(lengths.mean()), self.episodes, successes, lengths)
+        return RolloutResult(
+            float(successes.mean()), float(lengths.mean()), self.episodes, successes, lengths
+        )
 
     def _run_wave(self, policy: PolicyFn, ids: list[int]) -> tuple[np.ndarray, np.ndarray]:
         envs = self.envs[: len(ids)]
         obs = [
-            env.reset(seed=self.seed * 100_003 + k, options={"reset_cell": self.cells[k, 0], "goal_cell": self.cells[k, 1]})[0]
-            for env, k in zip(envs, ids)
+            env.reset(
+                seed=self.seed * 100_003 + k,
+                options={"reset_cell": self.cells[k, 0], "goal_cell": self.cells[k, 1]},
+            )[0]
+            for env, k in zip(envs, ids, strict=True)
         ]
         active = np.ones(len(ids), dtype=bool)
         success = np.zeros(len(ids), dtype=bool)
@@ -73,11 +88,13 @@ class RolloutEvaluator:
             idx = np.flatnonzero(active)
             if len(idx) == 0:
                 break
-            batch = {k: torch.as_tensor(np.stack([obs[i][k] for i in idx]), dtype=torch.float32)
-                     for k in ("observation", "achieved_goal", "desired_goal")}
+            batch = {
+                k: torch.as_tensor(np.stack([obs[i][k] for i in idx]), dtype=torch.float32)
+                for k in ("observation", "achieved_goal", "desired_goal")
+            }
             actions = policy(batch["observation"], batch["achieved_goal"], batch["desired_goal"])
             actions = actions.detach().cpu().numpy()
-            for a, i in zip(actions, idx):
+            for a, i in zip(actions, idx, strict=True):
                 obs[i], _, terminated, truncated, info = envs[i].step(a)
                 length[i] += 1
                 if info.get("success", False):

@@ -207,8 +207,11 @@ def test_mlp_dropout_active_in_train_mode():
 
 def test_add_anchor_mean_freezes_older():
     net = _mlp()
-    before = [[p.detach().clone() for p in plist] for layer in subspace_layers(net)
-              for plist in layer._lists()]
+    before = [
+        [p.detach().clone() for p in plist]
+        for layer in subspace_layers(net)
+        for plist in layer._lists()
+    ]
     net.add_anchor("mean")
     assert net.n_anchors == K + 1
     lists = [plist for layer in subspace_layers(net) for plist in layer._lists()]

@@ -59,7 +59,9 @@ class TaskDataModule(L.LightningDataModule):
         self.batch_size = batch_size
         self.her = HERConfig(
             waysteps=waysteps if waysteps is not None else self.task.defaults.waysteps,
-            temperature=her_temperature if her_temperature is not None else self.task.defaults.her_temperature,
+            temperature=her_temperature
+            if her_temperature is not None
+            else self.task.defaults.her_temperature,
             strategy=her_strategy,
         )
         self.steps_per_epoch = steps_per_epoch

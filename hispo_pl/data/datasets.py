@@ -28,7 +28,7 @@ class DatasetNotFoundError(FileNotFoundError):
 
 
 def local_dataset_id(name: str) -> str:
-    """Minari id of our locally generated dataset for a maze, e.g. ``hispo/pointmaze-umaze-expert-v0``."""
+    """Minari id of our local dataset for a maze: ``hispo/pointmaze-umaze-expert-v0``."""
     return f"{NAMESPACE}/{name}-expert-v{DATASET_VERSION}"
 
 
@@ -67,20 +67,6 @@ class EpisodeArrays:
             self,
             observations=transform_observation(task, self.observations),
             actions=transform_action(task, self.actions),
-        )
-
-    def head(self, episodes: int) -> EpisodeArrays:
-        """The first ``episodes`` episodes."""
-        ends = np.unique(self.episode_end)
-        if episodes >= len(ends):
-            return self
-        stop = int(ends[episodes - 1]) + 1
-        return EpisodeArrays(
-            self.observations[:stop],
-            self.positions[:stop],
-            self.actions[:stop],
-            self.episode_end[:stop],
-            self.sample_index[self.sample_index < stop],
         )
 
 
@@ -256,7 +242,9 @@ def generate_dataset(
             EpisodeBuffer(
                 id=k,
                 seed=seed * 1_000_003 + k,
-                observations={key: ep[key] for key in ("observation", "achieved_goal", "desired_goal")},
+                observations={
+                    key: ep[key] for key in ("observation", "achieved_goal", "desired_goal")
+                },
                 actions=ep["actions"],
                 rewards=list(ep["rewards"]),
                 terminations=[False] * n,

@@ -22,7 +22,7 @@ class HERConfig:
     temperature: float = 100.0
     """Mean of the exponential goal offset (steps) for the ``exponential`` strategy."""
     strategy: Strategy = "exponential"
-    """exponential: offset ~ Exp(temperature); uniform: U{i..end}; geometric: Geom(1/temperature)."""
+    """exponential: offset ~ Exp(temperature); uniform: U{i..end}; geometric: Geom(1/temp)."""
     jitter: int = 2
     """Subgoal index jitter, uniform in {-jitter..jitter}."""
 

@@ -130,7 +130,7 @@ class Task:
 
 
 def parse_task(spec: str | Task) -> Task:
-    """Parse ``pointmaze-umaze-PO[500]`` into a :class:`Task`; raise with the grammar if malformed."""
+    """Parse ``pointmaze-umaze-PO[500]`` into a :class:`Task`; malformed specs show the grammar."""
     if isinstance(spec, Task):
         return spec
     m = _SPEC_RE.match(spec.strip())

@@ -113,7 +113,9 @@ class BC(GoalConditionedBC):
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
-        self.policy = GaussianPolicy(feature_dim(goal_dim) + obs_dim + 2 * goal_dim, hidden, action_dim, dropout)
+        self.policy = GaussianPolicy(
+            feature_dim(goal_dim) + obs_dim + 2 * goal_dim, hidden, action_dim, dropout
+        )
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         x = HBC.high_input(batch["observation"], batch["position"], batch["goal"])

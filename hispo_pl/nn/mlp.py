@@ -54,8 +54,12 @@ class ResidualMLP(nn.Module):
             nn.Linear(in_dim, hidden), nn.LayerNorm(hidden), nn.GELU(), FastDropout(dropout)
         )
         self.block = nn.Sequential(
-            nn.Linear(hidden, hidden), nn.LayerNorm(hidden), nn.GELU(), FastDropout(dropout),
-            nn.Linear(hidden, hidden), nn.LayerNorm(hidden),
+            nn.Linear(hidden, hidden),
+            nn.LayerNorm(hidden),
+            nn.GELU(),
+            FastDropout(dropout),
+            nn.Linear(hidden, hidden),
+            nn.LayerNorm(hidden),
         )
         self.out = nn.Sequential(nn.GELU(), FastDropout(dropout))
         self.head = nn.Linear(hidden, out_dim)

@@ -264,9 +264,12 @@ class SubspaceResidualMLP(nn.Module):
     def load_residual_mlp(self, plain: ResidualMLP, anchor: int = 0) -> None:
         """Copy a plain ``ResidualMLP``'s parameters into one anchor (e.g. a pretrained start)."""
         pairs: list[tuple[SubspaceLayer, nn.Module]] = [
-            (self.inp_linear, plain.inp[0]), (self.inp_norm, plain.inp[1]),
-            (self.block_linear1, plain.block[0]), (self.block_norm1, plain.block[1]),
-            (self.block_linear2, plain.block[4]), (self.block_norm2, plain.block[5]),
+            (self.inp_linear, plain.inp[0]),
+            (self.inp_norm, plain.inp[1]),
+            (self.block_linear1, plain.block[0]),
+            (self.block_norm1, plain.block[1]),
+            (self.block_linear2, plain.block[4]),
+            (self.block_norm2, plain.block[5]),
             (self.head, plain.head),
         ]
         for layer, src in pairs:

@@ -1,0 +1,32 @@
+"""Shared fixtures: an isolated Minari store and one tiny generated PointMaze dataset."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+TINY_EPISODES = 6
+
+
+@pytest.fixture(scope="session", autouse=True)
+def minari_home(tmp_path_factory):
+    """Point MINARI_DATASETS_PATH at a temp dir for the whole session (never ~/.minari).
+
+    minari reads the variable on every call, so setting it here, before any test runs,
+    isolates every dataset read, write and listing.
+    """
+    path = tmp_path_factory.mktemp("minari")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("MINARI_DATASETS_PATH", str(path))
+        yield path
+
+
+@pytest.fixture(scope="session")
+def tiny_umaze(minari_home):
+    """A 6-episode local pointmaze-umaze dataset, generated once, as EpisodeArrays."""
+    from hispo_pl.data.datasets import generate_dataset, load_episodes
+
+    assert os.environ["MINARI_DATASETS_PATH"] == str(minari_home)
+    generate_dataset("pointmaze-umaze", episodes=TINY_EPISODES, progress=False)
+    return load_episodes(f"pointmaze-umaze-N[{TINY_EPISODES}]", generate_if_missing=False)
