@@ -115,6 +115,7 @@ def _quiet_known_warnings() -> None:
         r".*treespec.*LeafSpec.*",
         r".*AdroitHand.*",
         r".*litlogger.*",
+        r".*LightningCLI's args parameter.*",
     ):
         warnings.filterwarnings("ignore", message=pattern)
 

@@ -1,0 +1,109 @@
+"""End to end through the ``hispo-pl`` command: one short fit, config handling, data commands."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from hispo_pl.cli import main
+from hispo_pl.data.tasks import TaskSpecError
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIGS = sorted((ROOT / "configs").rglob("*.yaml"))
+
+
+def _fit_args(tmp_path: Path, *extra: str) -> list[str]:
+    return [
+        "fit",
+        "--config",
+        str(ROOT / "configs/hbc/pointmaze-umaze.yaml"),
+        "--data.task",
+        "pointmaze-umaze-N[6]",
+        "--data.batch_size",
+        "256",
+        "--trainer.max_steps",
+        "40",
+        "--trainer.logger.init_args.save_dir",
+        str(tmp_path),
+        "--trainer.callbacks.init_args.eval_every",
+        "20",
+        "--trainer.callbacks.init_args.episodes",
+        "4",
+        "--trainer.log_every_n_steps",
+        "10",
+        "--trainer.enable_progress_bar",
+        "false",
+        *extra,
+    ]
+
+
+def test_fit_trains_evaluates_logs_and_prints_success(tiny_umaze, tmp_path, capsys):
+    main(_fit_args(tmp_path))
+    out = capsys.readouterr().out
+    assert "[hispo-pl] HBC on pointmaze-umaze-N[6]: success" in out
+    assert "over 4 episodes" in out and "after 40 steps" in out
+
+    events = list(tmp_path.rglob("events.out.tfevents.*"))
+    assert events, "no TensorBoard event file written"
+    acc = EventAccumulator(str(events[0].parent))
+    acc.Reload()
+    tags = acc.Tags()["scalars"]
+    assert {"train/loss_high", "train/loss_low", "eval/success"} <= set(tags)
+    success = acc.Scalars("eval/success")
+    assert [s.step for s in success] == [20, 40]  # periodic, then at the end of training
+    assert all(0.0 <= s.value <= 1.0 for s in success)
+    assert list(tmp_path.rglob("*.ckpt")), "no checkpoint written"
+
+
+def test_flat_bc_config_runs(tiny_umaze, tmp_path, capsys):
+    args = _fit_args(tmp_path)
+    args[2] = str(ROOT / "configs/bc/pointmaze-umaze.yaml")
+    main(args)
+    assert "[hispo-pl] BC on pointmaze-umaze-N[6]: success" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("config", CONFIGS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_shipped_config_parses(config, capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["fit", "--config", str(config), "--print_config"])
+    assert done.value.code == 0
+    printed = capsys.readouterr().out
+    assert "class_path: hispo_pl.modules." in printed and "task: pointmaze-" in printed
+
+
+def test_dotted_override_shows_in_printed_config(capsys):
+    with pytest.raises(SystemExit):
+        main(["fit", "--config", str(CONFIGS[0]), "--trainer.max_steps", "123", "--print_config"])
+    assert "max_steps: 123" in capsys.readouterr().out
+
+
+def test_config_typo_is_rejected_with_its_name(capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["fit", "--config", str(CONFIGS[0]), "--trainer.max_stepz", "5"])
+    assert done.value.code != 0
+    assert "max_stepz" in capsys.readouterr().err
+
+
+def test_malformed_task_in_config_shows_the_grammar(tmp_path):
+    with pytest.raises(TaskSpecError, match="task spec grammar"):
+        main(_fit_args(tmp_path, "--data.task", "pointmaze-umaz-PO[5]"))
+
+
+def test_data_generate_and_list(monkeypatch, tmp_path, capsys):
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    assert main(["data", "generate", "pointmaze-umaze", "--episodes", "2"]) == 0
+    stats = json.loads(capsys.readouterr().out)
+    assert stats["id"] == "hispo/pointmaze-umaze-expert-v0"
+    assert stats["episodes"] == 2 and stats["steps"] == 2 * 300
+    assert "seed 0" in stats["description"]
+    assert main(["data", "list"]) == 0
+    assert '"id": "hispo/pointmaze-umaze-expert-v0"' in capsys.readouterr().out
+
+
+def test_data_generate_rejects_unknown_maze(monkeypatch, tmp_path):
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    with pytest.raises(TaskSpecError, match="unknown maze"):
+        main(["data", "generate", "pointmaze-hexagon", "--episodes", "1"])
