@@ -36,6 +36,7 @@ def expert_policy(expert, task="pointmaze-umaze", observe=lambda o: o):
     def policy(observation, position, goal):
         actions = []
         for o, g in zip(observation.numpy(), goal.numpy(), strict=True):
+            expert.reset()  # one expert serves every row: plan afresh from each row's own cell
             a = expert.act({"observation": observe(o.astype(np.float64)), "desired_goal": g})
             actions.append(transform_action(task, a))
         return torch.as_tensor(np.stack(actions), dtype=torch.float32)

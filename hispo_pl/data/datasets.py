@@ -159,6 +159,7 @@ def collect_episode(env, expert, rng: np.random.Generator, seed: int, noise: flo
     cells = free_cells(maze_array(env))
     i, j = rng.choice(len(cells), size=2, replace=False)
     obs, _ = env.reset(seed=seed, options={"reset_cell": cells[i], "goal_cell": cells[j]})
+    expert.reset()
     keys = ("observation", "achieved_goal", "desired_goal")
     record = {k: [obs[k]] for k in keys}
     actions, rewards, success = [], [], []
