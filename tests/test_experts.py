@@ -1,4 +1,4 @@
-"""The PointMaze expert: reaches goals in every maze, turns at cell centres, replans on goal change."""
+"""The PointMaze expert: reaches goals, turns at cell centres, replans when the goal changes."""
 
 from __future__ import annotations
 
