@@ -1,0 +1,131 @@
+"""Continual-learning stream metrics (PER, BWT, FWT, MEM) from a results matrix.
+
+Kept pure (numpy only; torch is imported lazily by :func:`module_bytes`) so the numbers in
+tables can be recomputed from saved results without a model, an environment or a GPU.
+
+Convention: ``R[i, k]`` is the success on task ``k`` measured after training task ``i``
+(0-based). Entries with ``k > i`` (tasks not trained yet) may be NaN and are ignored by every
+metric. Values stay in the units of ``R`` (fractions 0-1); multiply by 100 for tables.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    import torch
+
+UNKNOWN = "·"
+"""Placeholder printed for entries that were not measured (NaN) in :func:`results_row_table`."""
+
+
+def _results_matrix(R: ArrayLike) -> np.ndarray:
+    """``R`` as a float N×N array, checked square and finite on/below the diagonal.
+
+    Only the lower triangle (incl. diagonal) enters the metrics, so only it must be known.
+    """
+    arr = np.asarray(R, dtype=float)
+    if arr.ndim != 2 or arr.shape[0] != arr.shape[1]:
+        raise ValueError(f"R must be a square N×N matrix, got shape {arr.shape}")
+    n = arr.shape[0]
+    if n == 0:
+        raise ValueError("R must contain at least one task (got a 0×0 matrix)")
+    lower = np.tril_indices(n)
+    bad = ~np.isfinite(arr[lower])
+    if bad.any():
+        i, k = lower[0][bad][0], lower[1][bad][0]
+        raise ValueError(
+            f"R must be finite on and below the diagonal; R[{i}, {k}] = {arr[i, k]} "
+            f"({int(bad.sum())} non-finite entr{'y' if bad.sum() == 1 else 'ies'})"
+        )
+    return arr
+
+
+def _scratch_vector(R_scratch: ArrayLike, n: int) -> np.ndarray:
+    """Per-task from-scratch success as a length-``n`` vector (diagonal if given as a matrix).
+
+    The paper writes ``R_scratch[k, k]``, so both the vector and the matrix form are accepted.
+    """
+    arr = np.asarray(R_scratch, dtype=float)
+    if arr.ndim == 2:
+        if arr.shape != (n, n):
+            raise ValueError(f"R_scratch as a matrix must be {n}×{n} like R, got shape {arr.shape}")
+        arr = np.diagonal(arr)
+    elif arr.ndim != 1:
+        raise ValueError(
+            f"R_scratch must be a length-{n} vector or an {n}×{n} matrix, got shape {arr.shape}"
+        )
+    if arr.shape[0] != n:
+        raise ValueError(f"R_scratch must have length N={n} (one per task), got {arr.shape[0]}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"R_scratch must be finite, got {arr.tolist()}")
+    return arr
+
+
+def continual_metrics(R: ArrayLike, R_scratch: ArrayLike | None = None) -> dict[str, float]:
+    """PER, BWT and (when ``R_scratch`` is given) FWT of a task stream.
+
+    - ``PER = 1/N Σ_k R[N-1, k]``: final performance over all tasks.
+    - ``BWT = 1/N Σ_k (R[N-1, k] - R[k, k])``: change since each task was learned
+      (negative = forgetting; the last task contributes 0).
+    - ``FWT = 1/N Σ_k (R[k, k] - R_scratch[k])``: gain over a single-task model trained from
+      scratch; omitted from the dict (not NaN) without ``R_scratch`` so callers cannot
+      mistake a missing baseline for a number.
+    """
+    arr = _results_matrix(R)
+    n = arr.shape[0]
+    final = arr[n - 1]
+    diag = np.diagonal(arr)
+    out = {
+        "PER": float(final.mean()),
+        "BWT": float((final - diag).mean()),
+    }
+    if R_scratch is not None:
+        out["FWT"] = float((diag - _scratch_vector(R_scratch, n)).mean())
+    return out
+
+
+def memory_ratio(stored_bytes: int, reference_bytes: int) -> float:
+    """MEM = stored bytes / bytes of one single-task model, so 1.0 means "as big as one model"."""
+    if reference_bytes <= 0:
+        raise ValueError(f"reference_bytes must be positive, got {reference_bytes}")
+    if stored_bytes < 0:
+        raise ValueError(f"stored_bytes must be non-negative, got {stored_bytes}")
+    return stored_bytes / reference_bytes
+
+
+def module_bytes(module: torch.nn.Module, include_buffers: bool = True) -> int:
+    """Bytes held by a module's parameters (and buffers): Σ numel × element_size.
+
+    Buffers (e.g. normalisation statistics, subspace anchors kept as buffers) are part of what
+    must be stored per model, hence counted by default.
+    """
+    tensors = list(module.parameters())
+    if include_buffers:
+        tensors += list(module.buffers())
+    return int(sum(t.numel() * t.element_size() for t in tensors))
+
+
+def results_row_table(R: ArrayLike) -> str:
+    """Plain-text table of ``R`` × 100 (one decimal), one row per "after T.." training step.
+
+    Unmeasured (NaN) entries print as ``·``. Meant for logs while a stream runs, so it does not
+    validate: partially filled matrices are fine as long as ``R`` is 2-D.
+    """
+    arr = np.asarray(R, dtype=float)
+    if arr.ndim != 2:
+        raise ValueError(f"R must be a 2-D matrix, got shape {arr.shape}")
+    n_rows, n_cols = arr.shape
+    digits = max(2, len(str(max(n_rows, n_cols))))
+    cols = [f"T{k + 1:0{digits}d}" for k in range(n_cols)]
+    labels = [f"after T{i + 1:0{digits}d}" for i in range(n_rows)]
+    cells = [[UNKNOWN if not np.isfinite(v) else f"{100 * v:.1f}" for v in row] for row in arr]
+    label_w = max((len(s) for s in labels), default=0)
+    width = max([len(c) for c in cols] + [len(c) for row in cells for c in row])
+    lines = [" " * label_w + "".join(f"  {c:>{width}}" for c in cols)]
+    for label, row in zip(labels, cells, strict=True):
+        lines.append(f"{label:<{label_w}}" + "".join(f"  {c:>{width}}" for c in row))
+    return "\n".join(lines)
