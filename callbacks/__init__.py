@@ -1,5 +1,6 @@
 """Callbacks that carry out the method (shipped as ``hispo_pl.callbacks``)."""
 
 from .rollout import RolloutEvaluation
+from .subspace import AnchorExtension, DirichletEvaluation, SubspacePruning
 
-__all__ = ["RolloutEvaluation"]
+__all__ = ["AnchorExtension", "DirichletEvaluation", "RolloutEvaluation", "SubspacePruning"]

@@ -1,21 +1,28 @@
-"""Periodic rollout evaluation of the policy being trained."""
+"""Rollout evaluation of the policy being trained: periodic on the current task, and at the end
+of a task on every task of the stream (one row of the success matrix R)."""
 
 from __future__ import annotations
 
 import lightning as L
 from typing_extensions import override
 
-from ..evaluation import RolloutEvaluator, module_policy
+from ..data.tasks import Task, parse_task
+from ..evaluation import RolloutEvaluator, RolloutResult, module_policy
 
 
 class RolloutEvaluation(L.Callback):
-    """Evaluates the policy on the current task every ``eval_every`` steps and at train end.
+    """Evaluates the policy with deterministic, seeded rollouts.
 
-    Logs ``eval/success`` and ``eval/episode_length`` at the global step; the last result is
-    kept in ``last`` for whoever drives the run (the CLI prints it).
+    - every ``eval_every`` steps on the current task, logged as ``eval/success`` (single task)
+      or ``task_XX/eval/success`` (in a stream) at the global step;
+    - at the end of training on the current task, or, when the datamodule belongs to a stream,
+      on every task of the stream: ``eval/T{i:02d}/on_T{j:02d}/success`` at step i. That row
+      is kept in ``stream_row`` for the ContinualLoop.
+
+    Environments are built once per task and reused for the whole run.
 
     Args:
-        eval_every: steps between evaluations (0: only at the end of training).
+        eval_every: steps between evaluations on the current task (0: only at the end).
         episodes: seeded evaluation episodes (random distinct start and goal cells).
         seed: evaluation seed (fixes start/goal cells and reset noise).
         progress: show a progress bar per evaluation.
@@ -30,31 +37,61 @@ class RolloutEvaluation(L.Callback):
             seed,
             progress,
         )
-        self._evaluator: RolloutEvaluator | None = None
+        self._evaluators: dict[Task, RolloutEvaluator] = {}
         self.last: dict[str, float] | None = None
+        self.stream_row: list[float] | None = None
 
-    def _evaluate(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        task = trainer.datamodule.task
-        if self._evaluator is None or self._evaluator.task != task:
-            self._evaluator = RolloutEvaluator(task, self.episodes, self.seed)
-        result = self._evaluator.run(module_policy(pl_module), progress=self.progress)
+    def _run(
+        self, task: str | Task, pl_module: L.LightningModule, task_index: int | None
+    ) -> RolloutResult:
+        task = parse_task(task)
+        if task not in self._evaluators:
+            self._evaluators[task] = RolloutEvaluator(task, self.episodes, self.seed)
+        policy = module_policy(pl_module, task=task_index)
+        return self._evaluators[task].run(policy, progress=self.progress)
+
+    def _evaluate_current(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        result = self._run(trainer.datamodule.task, pl_module, pl_module.task_index)
         self.last = {
             "success": result.success,
             "episode_length": result.episode_length,
             "step": trainer.global_step,
         }
         if trainer.logger is not None:
+            prefix = pl_module.log_prefix
             trainer.logger.log_metrics(
-                {"eval/success": result.success, "eval/episode_length": result.episode_length},
+                {
+                    f"{prefix}eval/success": result.success,
+                    f"{prefix}eval/episode_length": result.episode_length,
+                },
                 step=trainer.global_step,
             )
+
+    def _evaluate_stream(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        i = pl_module.task_index
+        row = [
+            self._run(task, pl_module, j).success
+            for j, task in enumerate(trainer.datamodule.stream)
+        ]
+        self.stream_row = row
+        self.last = {"success": row[i], "step": trainer.global_step}
+        if trainer.logger is not None:
+            metrics = {f"eval/T{i + 1:02d}/on_T{j + 1:02d}/success": s for j, s in enumerate(row)}
+            trainer.logger.log_metrics(metrics, step=i)
+
+    @override
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        self.stream_row = None
 
     @override
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
         step = trainer.global_step
         if self.eval_every > 0 and step % self.eval_every == 0 and step < (trainer.max_steps or 0):
-            self._evaluate(trainer, pl_module)
+            self._evaluate_current(trainer, pl_module)
 
     @override
-    def on_train_end(self, trainer, pl_module) -> None:
-        self._evaluate(trainer, pl_module)
+    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.datamodule.stream:
+            self._evaluate_stream(trainer, pl_module)
+        else:
+            self._evaluate_current(trainer, pl_module)

@@ -12,6 +12,7 @@ import argparse
 import json
 import sys
 import warnings
+from pathlib import Path
 
 import torch
 from lightning.pytorch.cli import LightningCLI
@@ -36,15 +37,38 @@ class HispoCLI(LightningCLI):
             default=0,
             help="torch.set_num_threads (0: torch default). Try 1 on a busy 2-core machine.",
         )
+        parser.add_argument(
+            "--scratch_results",
+            type=str | None,
+            default=None,
+            help="streams: results.json of a from-scratch run (SC1/SCN) of the same stream; its "
+            "diagonal is R_scratch for FWT",
+        )
         for dim in ("obs_dim", "action_dim", "goal_dim"):
             parser.link_arguments(f"data.{dim}", f"model.init_args.{dim}", apply_on="instantiate")
 
     def before_instantiate_classes(self) -> None:
-        set_num_threads(self.config.get(self.subcommand, self.config).get("num_threads", 0))
+        config = self.config.get(self.subcommand, self.config)
+        set_num_threads(config.get("num_threads", 0))
+        logger = config.get("trainer", {}).get("logger")
+        # a stream's run directory must be the same on a rerun, so that it resumes
+        is_stream = bool(config.get("data", {}).get("stream"))
+        if is_stream and logger and logger.get("init_args", {}).get("version", "") is None:
+            logger["init_args"]["version"] = f"seed{config.get('seed_everything') or 0}"
+
+    def fit(self, model, datamodule, **kwargs) -> None:
+        """One task: ``trainer.fit``. A stream: the ContinualLoop, a fresh Trainer per task."""
+        if datamodule.stream is None:
+            self.trainer.fit(model, datamodule=datamodule, **kwargs)
+            return
+        self.stream_results = run_stream_from_cli(self, model, datamodule)
 
     def after_fit(self) -> None:
         from .callbacks import RolloutEvaluation
 
+        if self.datamodule.stream is not None:
+            print_stream_results(self.stream_results)
+            return
         for cb in self.trainer.callbacks:
             if isinstance(cb, RolloutEvaluation) and cb.last is not None:
                 task = self.datamodule.task
@@ -55,6 +79,61 @@ class HispoCLI(LightningCLI):
                 )
                 if self.trainer.log_dir:
                     print(f"[hispo-pl] TensorBoard logs: {self.trainer.log_dir}")
+
+
+def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
+    """Build the ContinualLoop from the parsed config: per-task datamodules share the data
+    settings, per-task Trainers share the callbacks and the stream's logger."""
+    from lightning.pytorch.callbacks import ModelCheckpoint, ModelSummary, ProgressBar
+    from lightning.pytorch.cli import SaveConfigCallback
+
+    from .loop import ContinualLoop
+    from .metrics import module_bytes
+    from .modules.hbc import HBC
+
+    config = cli.config[cli.subcommand]
+    data_args = dict(config["data"])
+    # the method's callbacks, shared by every task's Trainer; each Trainer adds its own defaults
+    defaults = (SaveConfigCallback, ModelCheckpoint, ModelSummary, ProgressBar)
+    callbacks = [cb for cb in cli.trainer.callbacks if not isinstance(cb, defaults)]
+    logger = cli.trainer.logger
+    run_dir = logger.log_dir if logger is not None else cli.trainer.default_root_dir
+
+    def make_datamodule(task: str) -> TaskDataModule:
+        return TaskDataModule(**{**data_args, "task": task, "stream": datamodule.stream})
+
+    def make_trainer(k: int):
+        return cli.instantiate_trainer(
+            callbacks=list(callbacks), enable_checkpointing=False, default_root_dir=run_dir
+        )
+
+    hp = model.hparams
+    sizes = {k: hp[k] for k in ("obs_dim", "action_dim", "goal_dim") if k in hp}
+    widths = {k: hp[k] for k in ("high_hidden", "low_hidden", "dropout") if k in hp}
+    reference = module_bytes(HBC(**sizes, **widths))
+    scratch = None
+    if config.get("scratch_results"):
+        R = json.loads(Path(config["scratch_results"]).read_text())["R"]
+        scratch = [R[k][k] for k in range(len(R))]
+    loop = ContinualLoop(
+        datamodule.stream, model, make_datamodule, make_trainer, run_dir, reference, scratch
+    )
+    results = loop.run()
+    results["run_dir"] = str(run_dir)
+    return results
+
+
+def print_stream_results(results: dict) -> None:
+    print(f"[hispo-pl] stream {' -> '.join(results['stream'])}")
+    print(results["table"])
+    parts = [f"{k} {100 * results[k]:.1f}" for k in ("PER", "BWT", "FWT") if k in results]
+    if "MEM" in results:
+        parts.append(f"MEM {100 * results['MEM']:.1f}")
+    print("[hispo-pl] " + "  ".join(parts) + "  (x100)")
+    if results.get("anchors"):
+        print(f"[hispo-pl] anchors per subspace: {results['anchors']}")
+    print(f"[hispo-pl] wall time per task (s): {[round(t) for t in results['wall_time_s']]}")
+    print(f"[hispo-pl] results: {results['run_dir']}/results.json")
 
 
 def run_lightning_cli(args: list[str] | None = None) -> HispoCLI:

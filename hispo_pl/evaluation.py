@@ -108,15 +108,17 @@ class RolloutEvaluator:
             env.close()
 
 
-def module_policy(module) -> PolicyFn:
-    """A deterministic policy function from a module with ``act(obs, pos, goal)``, in eval mode."""
+def module_policy(module, task: int | None = None) -> PolicyFn:
+    """A deterministic policy function from a module's ``act(obs, pos, goal, task)``, run in
+    eval mode; ``task`` picks the task's policy for methods that keep one per task."""
 
     def policy(observation, position, goal):
         was_training = module.training
         module.eval()
         try:
             device = next(module.parameters()).device
-            return module.act(observation.to(device), position.to(device), goal.to(device))
+            obs, pos, goal = observation.to(device), position.to(device), goal.to(device)
+            return module.act(obs, pos, goal, task=task)
         finally:
             module.train(was_training)
 

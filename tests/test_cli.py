@@ -12,7 +12,11 @@ from hispo_pl.cli import main
 from hispo_pl.data.tasks import TaskSpecError
 
 ROOT = Path(__file__).resolve().parents[1]
-CONFIGS = sorted((ROOT / "configs").rglob("*.yaml"))
+CONFIGS = sorted(
+    p for p in (ROOT / "configs").rglob("*.yaml") if p.parent.name not in ("streams", "methods")
+)
+STREAM_CONFIGS = sorted((ROOT / "configs/streams").glob("*.yaml"))
+METHOD_CONFIGS = sorted((ROOT / "configs/methods").glob("*.yaml"))
 
 
 def _fit_args(tmp_path: Path, *extra: str) -> list[str]:
@@ -72,6 +76,16 @@ def test_every_shipped_config_parses(config, capsys):
     assert done.value.code == 0
     printed = capsys.readouterr().out
     assert "class_path: hispo_pl.modules." in printed and "task: pointmaze-" in printed
+
+
+@pytest.mark.parametrize("stream", STREAM_CONFIGS, ids=lambda p: p.stem)
+@pytest.mark.parametrize("method", METHOD_CONFIGS, ids=lambda p: p.stem)
+def test_every_stream_and_method_config_pair_parses(stream, method, capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["fit", "--config", str(stream), "--config", str(method), "--print_config"])
+    assert done.value.code == 0
+    printed = capsys.readouterr().out
+    assert f"stream: {stream.stem}" in printed and "class_path: hispo_pl.modules." in printed
 
 
 def test_dotted_override_shows_in_printed_config(capsys):

@@ -10,7 +10,7 @@ from torch.utils.data import DataLoader, IterableDataset
 
 from .datasets import EpisodeArrays, load_episodes
 from .sampler import HERConfig, HERSampler, Strategy
-from .tasks import Task, parse_task
+from .tasks import Task, parse_stream, parse_task
 
 
 class _Batches(IterableDataset):
@@ -40,6 +40,9 @@ class TaskDataModule(L.LightningDataModule):
         her_strategy: exponential | uniform | geometric.
         steps_per_epoch: batches per epoch (Trainer's ``max_steps`` bounds the total).
         seed: sampler seed.
+        stream: a stream name (``pointmaze-1``) or list of task specs: ``hispo-pl fit`` then
+            trains the whole stream with the ContinualLoop (``task`` is ignored), and the
+            evaluation at each task's end covers every task of the stream.
     """
 
     def __init__(
@@ -52,8 +55,12 @@ class TaskDataModule(L.LightningDataModule):
         her_strategy: Strategy = "exponential",
         steps_per_epoch: int = 1000,
         seed: int = 0,
+        stream: str | list[str] | None = None,
     ):
         super().__init__()
+        self.stream: list[str] | None = (
+            None if stream is None else [t.spec for t in parse_stream(stream)]
+        )
         self.task: Task = parse_task(task)
         self.dataset = dataset
         self.batch_size = batch_size

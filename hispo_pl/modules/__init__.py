@@ -1,5 +1,6 @@
-"""LightningModules: the backbones and, later, the continual methods built on them."""
+"""LightningModules: the backbones and the continual methods built on them."""
 
 from .hbc import BC, HBC, GoalConditionedBC
+from .hispo import HiSPO, SubspacePolicy
 
-__all__ = ["BC", "HBC", "GoalConditionedBC"]
+__all__ = ["BC", "HBC", "GoalConditionedBC", "HiSPO", "SubspacePolicy"]

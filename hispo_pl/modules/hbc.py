@@ -22,6 +22,8 @@ class GoalConditionedBC(L.LightningModule):
         super().__init__()
         self.lr = lr
         self.lr_schedule = lr_schedule
+        self.task_index = 0  # position in a stream, set by the ContinualLoop
+        self.log_prefix = ""  # e.g. "task_03/" inside a stream, so curves of tasks do not collide
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         raise NotImplementedError
@@ -29,7 +31,7 @@ class GoalConditionedBC(L.LightningModule):
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
         losses = self.losses(batch)
         self.log_dict(
-            {f"train/{k}": v.detach() for k, v in losses.items()},
+            {f"{self.log_prefix}train/{k}": v.detach() for k, v in losses.items()},
             prog_bar=True,
             batch_size=len(batch["action"]),
         )
@@ -45,7 +47,10 @@ class GoalConditionedBC(L.LightningModule):
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
     @torch.no_grad()
-    def act(self, observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
+    def act(
+        self, observation: Tensor, position: Tensor, goal: Tensor, task: int | None = None
+    ) -> Tensor:
+        """Deterministic action; ``task`` selects the task's policy where a method keeps several."""
         raise NotImplementedError
 
 
@@ -92,7 +97,9 @@ class HBC(GoalConditionedBC):
         return {"loss": loss_high + loss_low, "loss_high": loss_high, "loss_low": loss_low}
 
     @torch.no_grad()
-    def act(self, observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
+    def act(
+        self, observation: Tensor, position: Tensor, goal: Tensor, task: int | None = None
+    ) -> Tensor:
         offset, _ = self.high(self.high_input(observation, position, goal))
         action, _ = self.low(self.low_input(observation, offset))
         return action
@@ -123,6 +130,8 @@ class BC(GoalConditionedBC):
         return {"loss": gaussian_nll(mean, log_std, batch["action"])}
 
     @torch.no_grad()
-    def act(self, observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
+    def act(
+        self, observation: Tensor, position: Tensor, goal: Tensor, task: int | None = None
+    ) -> Tensor:
         action, _ = self.policy(HBC.high_input(observation, position, goal))
         return action

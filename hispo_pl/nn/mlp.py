@@ -73,6 +73,14 @@ class ResidualMLP(nn.Module):
         return self.head(h)
 
 
+def split_gaussian(raw: Tensor, out_dim: int, log_std_min: float, log_std_max: float):
+    """Split a head's ``2 * out_dim`` outputs into a mean and a softly clamped log-std (a tanh
+    squashed into [min, max] keeps gradients alive at the bounds, unlike a hard clamp)."""
+    mean, free = raw.split(out_dim, dim=-1)
+    log_std = log_std_min + 0.5 * (log_std_max - log_std_min) * (torch.tanh(free) + 1.0)
+    return mean, log_std
+
+
 class GaussianPolicy(nn.Module):
     """A diagonal Gaussian over ``out_dim`` values with a learned, softly clamped log-std."""
 
@@ -91,10 +99,7 @@ class GaussianPolicy(nn.Module):
         self.net = ResidualMLP(in_dim, hidden, 2 * out_dim, dropout)
 
     def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
-        mean, raw = self.net(x).split(self.out_dim, dim=-1)
-        span = self.log_std_max - self.log_std_min
-        log_std = self.log_std_min + 0.5 * span * (torch.tanh(raw) + 1.0)
-        return mean, log_std
+        return split_gaussian(self.net(x), self.out_dim, self.log_std_min, self.log_std_max)
 
 
 def gaussian_nll(mean: Tensor, log_std: Tensor, target: Tensor) -> Tensor:

@@ -1,0 +1,225 @@
+"""HiSPO's callbacks: extend the subspaces at task start, search the previous subspace at task
+end, and keep or prune the new anchors. Each hook is thin; the rules live in
+:mod:`hispo_pl.decisions`."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from lightning.pytorch.loggers import TensorBoardLogger
+from typing_extensions import override
+
+from ..data.sampler import HERSampler
+from ..decisions import keep_previous, previous_subspace_candidates
+from ..modules.hispo import SubspacePolicy
+
+
+def _require_subspace_policy(pl_module: L.LightningModule, who: str) -> SubspacePolicy:
+    if not isinstance(pl_module, SubspacePolicy):
+        raise TypeError(
+            f"{who} needs a module with subspaces of policies (the SubspacePolicy protocol, e.g. "
+            f"hispo_pl.modules.HiSPO), got {type(pl_module).__name__}"
+        )
+    return pl_module
+
+
+class AnchorExtension(L.Callback):
+    """At the start of every task after the first, add one trainable anchor to each subspace
+    (older anchors frozen) before the optimiser is built; stored weights get a 0 appended."""
+
+    @override
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        module = _require_subspace_policy(pl_module, type(self).__name__)
+        if stage != "fit" or module.task_index == 0:
+            return
+        for name in module.subspace_names:
+            if module.n_anchors(name) <= module.task_index:  # not extended for this task yet
+                module.add_anchor(name)
+
+
+@dataclass
+class SearchResult:
+    """What the search of one subspace found on the current task."""
+
+    l_curr: float
+    alpha_curr: list[float]
+    l_prev: float | None = None
+    alpha_prev: list[float] | None = None
+
+
+class DirichletEvaluation(L.Callback):
+    """At the end of a task, score candidate weights over the previous anchors of each subspace.
+
+    ``n_candidates`` Dirichlet(1) draws are scored on the same ``n_batches`` batches of the
+    current task (common random numbers), in eval mode with deterministic predictions, as one
+    vectorised computation per chunk of candidates. The trained weights (softmax of the scores)
+    are scored on the same batches. Results are kept in ``results`` for :class:`SubspacePruning`
+    and the candidates' losses saved as ``search/task_XX_<subspace>.npz`` in the run directory.
+
+    Args:
+        n_candidates: Dirichlet draws per subspace.
+        n_batches: batches of the current task every candidate is scored on.
+        loss: ``mse`` of the deterministic prediction (positive), or ``nll``.
+        seed: seeds the batches and the draws.
+    """
+
+    def __init__(
+        self, n_candidates: int = 1024, n_batches: int = 16, loss: str = "mse", seed: int = 0
+    ):
+        self.n_candidates, self.n_batches, self.loss, self.seed = (
+            n_candidates,
+            n_batches,
+            loss,
+            seed,
+        )
+        self.results: dict[str, SearchResult] = {}
+
+    @override
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        _require_subspace_policy(pl_module, type(self).__name__)
+        self.results = {}
+
+    @override
+    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self.results = self._run_search(trainer, pl_module)
+
+    @torch.no_grad()
+    def _run_search(self, trainer: L.Trainer, module) -> dict[str, SearchResult]:
+        dm = trainer.datamodule
+        sampler = HERSampler(dm.data, dm.her, dm.batch_size, seed=self.seed)
+        device = module.device
+        batches = [
+            {k: v.to(device) for k, v in sampler.sample().items()} for _ in range(self.n_batches)
+        ]
+        generator = torch.Generator().manual_seed(self.seed)
+        was_training = module.training
+        module.eval()
+        results = {}
+        try:
+            for name in module.subspace_names:
+                alpha_curr = module.current_alpha(name).to(device)
+                l_curr = self._mean_loss(module, name, alpha_curr[None], batches)[0].item()
+                result = SearchResult(l_curr, alpha_curr.tolist())
+                k = module.n_anchors(name)
+                if k > 1:
+                    cands = previous_subspace_candidates(self.n_candidates, k, generator).to(device)
+                    losses = self._mean_loss(module, name, cands, batches)
+                    best = int(losses.argmin())
+                    result.l_prev, result.alpha_prev = losses[best].item(), cands[best].tolist()
+                    self._save(trainer, module, name, cands, losses, l_curr)
+                results[name] = result
+        finally:
+            module.train(was_training)
+        return results
+
+    def _mean_loss(self, module, name, alphas, batches) -> torch.Tensor:
+        return torch.stack(
+            [module.score_alphas(name, alphas, b, loss=self.loss) for b in batches]
+        ).mean(0)
+
+    def _save(self, trainer, module, name, cands, losses, l_curr) -> None:
+        out = Path(trainer.default_root_dir) / "search"
+        out.mkdir(parents=True, exist_ok=True)
+        np.savez(
+            out / f"task_{module.task_index + 1:02d}_{name}.npz",
+            alphas=cands.cpu().numpy(),
+            losses=losses.cpu().numpy(),
+            l_curr=l_curr,
+        )
+
+
+def _check_order(callbacks: list[L.Callback], pruning: SubspacePruning) -> DirichletEvaluation:
+    """Task-end hooks run in list order: search, then prune, then evaluate the result."""
+    from .rollout import RolloutEvaluation
+
+    pos = {id(cb): i for i, cb in enumerate(callbacks)}
+    search = [cb for cb in callbacks if isinstance(cb, DirichletEvaluation)]
+    if not search or pos[id(search[0])] > pos[id(pruning)]:
+        raise ValueError("SubspacePruning needs a DirichletEvaluation callback listed before it")
+    if any(
+        isinstance(cb, RolloutEvaluation) and pos[id(cb)] < pos[id(pruning)] for cb in callbacks
+    ):
+        raise ValueError(
+            "list RolloutEvaluation after SubspacePruning: it must see the pruned policy"
+        )
+    return search[0]
+
+
+class SubspacePruning(L.Callback):
+    """At the end of a task, per subspace: prune the new anchor iff
+    ``L_prev <= (1 + eps) * L_curr`` and store ``alpha_prev`` for the task, else keep it and
+    store ``alpha_curr``. Decisions go to TensorBoard (text) and ``decisions.jsonl``.
+
+    Must come after :class:`DirichletEvaluation` and before ``RolloutEvaluation`` in the
+    callback list (checked in ``setup``).
+
+    Args:
+        eps_high: tolerance of the high subspace.
+        eps_low: tolerance of the low subspace.
+    """
+
+    def __init__(self, eps_high: float = 0.1, eps_low: float = 0.1):
+        self.eps = {"high": eps_high, "low": eps_low}
+        self._search: DirichletEvaluation | None = None
+
+    @override
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        _require_subspace_policy(pl_module, type(self).__name__)
+        self._search = _check_order(trainer.callbacks, self)
+
+    @override
+    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        decisions = [
+            self._decide(pl_module, name, res) for name, res in self._search.results.items()
+        ]
+        pl_module.freeze_all()
+        self._log(trainer, pl_module, decisions)
+
+    def _decide(self, module, name: str, res: SearchResult) -> dict:
+        task = module.task_index
+        eps = self.eps.get(name, max(self.eps.values()))
+        if res.l_prev is None:
+            module.set_task_alpha(task, name, torch.tensor(res.alpha_curr))
+            action = "first"
+        elif keep_previous(res.l_prev, res.l_curr, eps):
+            module.prune_last_anchor(name)
+            module.set_task_alpha(task, name, torch.tensor(res.alpha_prev[:-1]))
+            action = "prune"
+        else:
+            module.set_task_alpha(task, name, torch.tensor(res.alpha_curr))
+            action = "keep"
+        return {
+            "task": task,
+            "subspace": name,
+            "decision": action,
+            "eps": eps,
+            "anchors": module.n_anchors(name),
+            **asdict(res),
+        }
+
+    def _log(self, trainer, module, decisions: list[dict]) -> None:
+        root = Path(trainer.default_root_dir)
+        root.mkdir(parents=True, exist_ok=True)
+        with open(root / "decisions.jsonl", "a") as f:
+            for d in decisions:
+                f.write(json.dumps(d) + "\n")
+        logger = trainer.logger
+        if logger is None:
+            return
+        task = module.task_index + 1
+        metrics = {f"anchors/{d['subspace']}/count": d["anchors"] for d in decisions}
+        for d in decisions:
+            if d["l_prev"] is not None:
+                metrics[f"search/{d['subspace']}/L_prev"] = d["l_prev"]
+            metrics[f"search/{d['subspace']}/L_curr"] = d["l_curr"]
+        logger.log_metrics(metrics, step=task)
+        if isinstance(logger, TensorBoardLogger):
+            text = "\n".join(
+                f"{d['subspace']}: {d['decision']} (anchors {d['anchors']})" for d in decisions
+            )
+            logger.experiment.add_text("decisions", text, global_step=task)

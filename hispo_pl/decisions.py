@@ -1,0 +1,32 @@
+"""Pure decision rules of HiSPO, kept apart from the hooks that apply them."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from .nn.subspace import sample_dirichlet
+
+
+def keep_previous(l_prev: float, l_curr: float, eps: float) -> bool:
+    """Prune the new anchor iff the best point of the previous subspace is nearly as good:
+    ``L_prev <= (1 + eps) * L_curr``, on positive losses."""
+    if l_prev < 0 or l_curr < 0:
+        raise ValueError(f"the rule compares positive losses, got L_prev={l_prev}, L_curr={l_curr}")
+    if eps < 0:
+        raise ValueError(f"eps must be non-negative, got {eps}")
+    return l_prev <= (1.0 + eps) * l_curr
+
+
+def previous_subspace_candidates(
+    n: int, n_anchors: int, generator: torch.Generator | None = None
+) -> Tensor:
+    """Candidate weights over the previous anchors (all but the newest, which gets 0):
+    Dirichlet(1) draws, shape [n, n_anchors]. With one previous anchor the only point is
+    [1, 0, ...], returned once."""
+    if n_anchors < 2:
+        raise ValueError("the previous subspace needs a newest anchor to leave out")
+    if n_anchors == 2:
+        return torch.tensor([[1.0, 0.0]])
+    draws = sample_dirichlet(n, n_anchors - 1, generator)
+    return torch.cat([draws, torch.zeros(n, 1)], dim=1)

@@ -1,0 +1,264 @@
+"""HiSPO: the HBC backbone with two subspaces of policies (high and low), one anchor per task.
+
+The module owns everything inference needs: the anchors of both subspaces, the trainable score
+vector of the current task, and the anchor weights (alpha) chosen for every task so far, kept in
+registered buffers. A checkpoint alone therefore acts on every task seen. Growing, searching and
+pruning are decided by callbacks through the :class:`SubspacePolicy` protocol.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, Protocol, runtime_checkable
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from ..nn.mlp import feature_dim, gaussian_nll, split_gaussian
+from ..nn.subspace import AnchorInit, SubspaceResidualMLP, cosine_similarity_penalty
+from .hbc import HBC, GoalConditionedBC
+
+SUBSPACES = ("high", "low")
+
+
+@runtime_checkable
+class SubspacePolicy(Protocol):
+    """What the HiSPO callbacks need from a module (checked in their ``setup``)."""
+
+    subspace_names: tuple[str, ...]
+    task_index: int
+
+    def n_anchors(self, subspace: str) -> int: ...
+    def task_alphas(self, subspace: str) -> Tensor: ...
+    def add_anchor(self, subspace: str) -> None: ...
+    def prune_last_anchor(self, subspace: str) -> None: ...
+    def current_alpha(self, subspace: str) -> Tensor: ...
+    def score_alphas(self, subspace: str, alphas: Tensor, batch: dict[str, Tensor]) -> Tensor: ...
+    def set_task_alpha(self, task: int, subspace: str, alpha: Tensor) -> None: ...
+
+
+class SubspaceGaussianPolicy(nn.Module):
+    """A Gaussian policy whose network is a subspace; ``alpha`` [K] or a batch of them [M, K]."""
+
+    def __init__(
+        self,
+        in_dim: int,
+        hidden: int,
+        out_dim: int,
+        dropout: float = 0.1,
+        log_std_min: float = -5.0,
+        log_std_max: float = 1.0,
+    ):
+        super().__init__()
+        self.out_dim = out_dim
+        self.log_std_min, self.log_std_max = log_std_min, log_std_max
+        self.net = SubspaceResidualMLP(in_dim, hidden, 2 * out_dim, dropout)
+
+    def forward(self, x: Tensor, alpha: Tensor) -> tuple[Tensor, Tensor]:
+        raw = self.net(x, alpha)
+        return split_gaussian(raw, self.out_dim, self.log_std_min, self.log_std_max)
+
+
+def training_alphas(scores: Tensor, groups: int, noise: float, generator=None) -> Tensor:
+    """Anchor weights for one training step, one row per sample group:
+    softmax(K · (tanh(s) + noise · ε)), ε ~ N(0, 1). Differentiable in the scores ``s``."""
+    k = scores.shape[-1]
+    eps = torch.randn(groups, k, generator=generator, device=scores.device)
+    return torch.softmax(k * (torch.tanh(scores) + noise * eps), dim=-1)
+
+
+class HiSPO(GoalConditionedBC):
+    """Hierarchical subspace of policies on the HBC backbone.
+
+    Args:
+        obs_dim, action_dim, goal_dim: sizes (linked from the data by the CLI).
+        high_hidden, low_hidden: widths of the high and low policies.
+        dropout: dropout of every hidden layer.
+        lr, lr_schedule: Adam learning rate and schedule (restarted each task).
+        anchor_init: a new anchor starts as the ``mean`` of the others, or ``random``.
+        cosine_weight: weight λ of the anchors' squared-cosine regulariser (0: off).
+        alpha_noise: std of the noise on the scores while training (0.1 in the paper).
+        alpha_groups: anchor weights are drawn per group of samples: the batch is split into
+            this many groups, each mixed with its own weights, so one step still costs one
+            forward (per-sample weights would need a weight matrix per sample). Setting it to
+            the batch size gives per-sample noise exactly.
+    """
+
+    subspace_names = SUBSPACES
+
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int,
+        goal_dim: int = 2,
+        high_hidden: int = 64,
+        low_hidden: int = 256,
+        dropout: float = 0.1,
+        lr: float = 3e-4,
+        lr_schedule: Literal["cosine", "constant"] = "cosine",
+        anchor_init: AnchorInit = "mean",
+        cosine_weight: float = 0.0,
+        alpha_noise: float = 0.1,
+        alpha_groups: int = 16,
+    ):
+        super().__init__(lr=lr, lr_schedule=lr_schedule)
+        self.save_hyperparameters()
+        f = feature_dim(goal_dim)
+        self.policies = nn.ModuleDict(
+            {
+                "high": SubspaceGaussianPolicy(
+                    f + obs_dim + 2 * goal_dim, high_hidden, goal_dim, dropout
+                ),
+                "low": SubspaceGaussianPolicy(f + obs_dim, low_hidden, action_dim, dropout),
+            }
+        )
+        self.scores = nn.ParameterDict({name: nn.Parameter(torch.zeros(1)) for name in SUBSPACES})
+        for name in SUBSPACES:  # one row of anchor weights per finished task
+            self.register_buffer(f"task_alpha_{name}", torch.zeros(0, 1))
+
+    # --- the SubspacePolicy protocol ----------------------------------------------------
+
+    def n_anchors(self, subspace: str) -> int:
+        return self.policies[subspace].net.n_anchors
+
+    def task_alphas(self, subspace: str) -> Tensor:
+        return getattr(self, f"task_alpha_{subspace}")
+
+    def _set_task_alphas(self, subspace: str, value: Tensor) -> None:
+        setattr(self, f"task_alpha_{subspace}", value)
+
+    def add_anchor(self, subspace: str) -> None:
+        """Grow a subspace by one trainable anchor (older ones frozen), reset its scores and
+        give every stored task a zero weight on the new anchor."""
+        self.policies[subspace].net.add_anchor(self.hparams.anchor_init)
+        k = self.n_anchors(subspace)
+        self.scores[subspace] = nn.Parameter(torch.zeros(k, device=self.scores[subspace].device))
+        self._set_task_alphas(subspace, F.pad(self.task_alphas(subspace), (0, 1)))
+
+    def prune_last_anchor(self, subspace: str) -> None:
+        """Drop the newest anchor of a subspace; stored weights lose their last coordinate."""
+        self.policies[subspace].net.remove_last_anchor()
+        k = self.n_anchors(subspace)
+        self.scores[subspace] = nn.Parameter(torch.zeros(k, device=self.scores[subspace].device))
+        self._set_task_alphas(subspace, self.task_alphas(subspace)[:, :k].contiguous())
+
+    def freeze_all(self) -> None:
+        """After a task: nothing trains until the next extension."""
+        for p in self.parameters():
+            p.requires_grad_(False)
+
+    def current_alpha(self, subspace: str) -> Tensor:
+        """The trained weights of the current task: softmax of the scores (no noise)."""
+        return torch.softmax(self.scores[subspace].detach(), dim=-1)
+
+    def set_task_alpha(self, task: int, subspace: str, alpha: Tensor) -> None:
+        """Store the weights task ``task`` acts with (rows are appended in task order)."""
+        rows = self.task_alphas(subspace)
+        alpha = alpha.detach().to(rows.device, rows.dtype).reshape(1, -1)
+        if alpha.shape[1] != self.n_anchors(subspace):
+            k = self.n_anchors(subspace)
+            raise ValueError(f"alpha has {alpha.shape[1]} entries, {subspace} has {k} anchors")
+        if rows.shape[1] != alpha.shape[1]:  # first task: the buffer had a placeholder width
+            rows = rows.new_zeros(rows.shape[0], alpha.shape[1])
+        if task < rows.shape[0]:
+            rows = rows.clone()
+            rows[task] = alpha[0]
+        elif task == rows.shape[0]:
+            rows = torch.cat([rows, alpha])
+        else:
+            raise ValueError(f"task {task} stored before tasks 0..{task - 1}")
+        self._set_task_alphas(subspace, rows)
+
+    @torch.no_grad()
+    def score_alphas(
+        self,
+        subspace: str,
+        alphas: Tensor,
+        batch: dict[str, Tensor],
+        loss: Literal["mse", "nll"] = "mse",
+        chunk: int = 64,
+    ) -> Tensor:
+        """Loss of each candidate weight vector ``alphas`` [S, K] on ``batch``, shape [S]:
+        one batched forward per chunk of candidates, deterministic predictions (eval mode)."""
+        x, target = self._io(subspace, batch)
+        out = []
+        for part in alphas.split(chunk):
+            mean, log_std = self.policies[subspace](x, part)  # [M, B, d]
+            if loss == "mse":
+                out.append((mean - target).pow(2).sum(-1).mean(-1))
+            else:
+                z = (target - mean) * torch.exp(-log_std)
+                out.append((0.5 * z.pow(2) + log_std).sum(-1).mean(-1))
+        return torch.cat(out)
+
+    # --- training and acting --------------------------------------------------------------
+
+    def _io(self, subspace: str, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
+        obs, pos = batch["observation"], batch["position"]
+        offset = batch["subgoal"] - pos
+        if subspace == "high":
+            return HBC.high_input(obs, pos, batch["goal"]), offset
+        return HBC.low_input(obs, offset), batch["action"]
+
+    def _grouped_forward(self, subspace: str, x: Tensor) -> tuple[Tensor, Tensor]:
+        groups = min(self.hparams.alpha_groups, x.shape[0])
+        while x.shape[0] % groups:
+            groups -= 1
+        alphas = training_alphas(self.scores[subspace], groups, self.hparams.alpha_noise)
+        mean, log_std = self.policies[subspace](x.reshape(groups, -1, x.shape[-1]), alphas)
+        return mean.reshape(x.shape[0], -1), log_std.reshape(x.shape[0], -1)
+
+    def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        out = {}
+        for name in SUBSPACES:
+            x, target = self._io(name, batch)
+            mean, log_std = self._grouped_forward(name, x)
+            out[f"loss_{name}"] = gaussian_nll(mean, log_std, target)
+        out["loss"] = out["loss_high"] + out["loss_low"]
+        if self.hparams.cosine_weight > 0:
+            reg = sum(cosine_similarity_penalty(self.policies[n]) for n in SUBSPACES)
+            out["cosine"] = reg
+            out["loss"] = out["loss"] + self.hparams.cosine_weight * reg
+        return out
+
+    def alpha_for(self, subspace: str, task: int | None) -> Tensor:
+        """Weights to act with: a finished task's stored row, else the current scores."""
+        rows = self.task_alphas(subspace)
+        if task is not None and task < rows.shape[0]:
+            return rows[task]
+        return self.current_alpha(subspace)
+
+    @torch.no_grad()
+    def act(
+        self, observation: Tensor, position: Tensor, goal: Tensor, task: int | None = None
+    ) -> Tensor:
+        task = self.task_index if task is None else task
+        offset, _ = self.policies["high"](
+            HBC.high_input(observation, position, goal), self.alpha_for("high", task)
+        )
+        action, _ = self.policies["low"](
+            HBC.low_input(observation, offset), self.alpha_for("low", task)
+        )
+        return action
+
+    @property
+    def n_tasks(self) -> int:
+        return self.task_alphas("high").shape[0]
+
+    # --- checkpoints ----------------------------------------------------------------------
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        checkpoint["hispo_task_index"] = self.task_index
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        self.restore_structure(checkpoint["state_dict"])
+        self.task_index = int(checkpoint.get("hispo_task_index", self.n_tasks))
+
+    def restore_structure(self, state_dict: dict[str, Tensor]) -> None:
+        """Resize anchors, scores and stored weights to a state dict's, before it loads."""
+        for name in SUBSPACES:
+            rows = state_dict[f"task_alpha_{name}"]
+            k = state_dict[f"scores.{name}"].shape[0]
+            self.policies[name].net.set_n_anchors(k)
+            self.scores[name] = nn.Parameter(torch.zeros(k))
+            self._set_task_alphas(name, torch.zeros_like(rows))
