@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -59,7 +60,9 @@ class HispoCLI(LightningCLI):
     def fit(self, model, datamodule, **kwargs) -> None:
         """One task: ``trainer.fit``. A stream: the ContinualLoop, a fresh Trainer per task."""
         if datamodule.stream is None:
+            start = time.perf_counter()
             self.trainer.fit(model, datamodule=datamodule, **kwargs)
+            self.fit_seconds = time.perf_counter() - start
             return
         self.stream_results = run_stream_from_cli(self, model, datamodule)
 
@@ -75,7 +78,8 @@ class HispoCLI(LightningCLI):
                 print(
                     f"[hispo-pl] {type(self.model).__name__} on {task}: success "
                     f"{100 * cb.last['success']:.1f}% over {cb.episodes} episodes, mean episode "
-                    f"length {cb.last['episode_length']:.1f}, after {cb.last['step']} steps"
+                    f"length {cb.last['episode_length']:.1f}, after {cb.last['step']} steps "
+                    f"({self.fit_seconds:.0f} s with evaluations)"
                 )
                 if self.trainer.log_dir:
                     print(f"[hispo-pl] TensorBoard logs: {self.trainer.log_dir}")
@@ -115,8 +119,16 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
     if config.get("scratch_results"):
         R = json.loads(Path(config["scratch_results"]).read_text())["R"]
         scratch = [R[k][k] for k in range(len(R))]
+    seed = config.get("seed_everything")  # the int LightningCLI seeded with, or False
     loop = ContinualLoop(
-        datamodule.stream, model, make_datamodule, make_trainer, run_dir, reference, scratch
+        datamodule.stream,
+        model,
+        make_datamodule,
+        make_trainer,
+        run_dir,
+        reference,
+        scratch,
+        seed=seed if isinstance(seed, int) and not isinstance(seed, bool) else None,
     )
     results = loop.run()
     results["run_dir"] = str(run_dir)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -51,6 +52,9 @@ class ContinualLoop:
         run_dir: where checkpoints, ``progress.json`` and ``results.json`` go.
         reference_bytes: bytes of one single-task model, for MEM.
         scratch_success: success of from-scratch single-task models per task, for FWT.
+        seed: when set, every task ``k`` starts with ``seed_everything(seed + k)``, so a task
+            trains the same whether the run went through the earlier tasks or resumed after
+            them (a resumed run skips their random draws).
     """
 
     def __init__(
@@ -62,6 +66,7 @@ class ContinualLoop:
         run_dir: str | Path,
         reference_bytes: int | None = None,
         scratch_success: Sequence[float] | None = None,
+        seed: int | None = None,
     ):
         self.stream = [parse_task(t).spec for t in stream]
         self.module = module
@@ -70,6 +75,7 @@ class ContinualLoop:
         self.run_dir = Path(run_dir)
         self.reference_bytes = reference_bytes
         self.scratch_success = scratch_success
+        self.seed = seed
 
     # --- progress on disk -------------------------------------------------------------------
 
@@ -106,6 +112,9 @@ class ContinualLoop:
             print(f"[hispo-pl] resuming {self.run_dir}: tasks 1..{done} already trained")
         for k in range(done, len(self.stream)):
             start = time.perf_counter()
+            if self.seed is not None:
+                workers = os.environ.get("PL_SEED_WORKERS") == "1"  # as the CLI seeded
+                L.seed_everything(self.seed + k, workers=workers, verbose=False)
             self.module.task_index = k
             self.module.log_prefix = f"task_{k + 1:02d}/"
             trainer = self.make_trainer(k)

@@ -30,3 +30,15 @@ def tiny_umaze(minari_home):
     assert os.environ["MINARI_DATASETS_PATH"] == str(minari_home)
     generate_dataset("pointmaze-umaze", episodes=TINY_EPISODES, progress=False)
     return load_episodes(f"pointmaze-umaze-N[{TINY_EPISODES}]", generate_if_missing=False)
+
+
+@pytest.fixture(scope="module")
+def one_thread():
+    """One torch thread for a module's tests: tiny networks on a busy 2-core machine run
+    several times faster without intra-op threads competing for the cores."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

@@ -48,7 +48,7 @@ def test_fit_trains_evaluates_logs_and_prints_success(tiny_umaze, tmp_path, caps
     main(_fit_args(tmp_path))
     out = capsys.readouterr().out
     assert "[hispo-pl] HBC on pointmaze-umaze-N[6]: success" in out
-    assert "over 4 episodes" in out and "after 40 steps" in out
+    assert "over 4 episodes" in out and "after 40 steps (" in out and "s with evaluations)" in out
 
     events = list(tmp_path.rglob("events.out.tfevents.*"))
     assert events, "no TensorBoard event file written"

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from hispo_pl.data.datasets import EpisodeArrays
+from hispo_pl.data.datasets import EpisodeArrays, goal_segment_ends
 from hispo_pl.data.sampler import HERConfig, HERSampler, relabel_indices
 from hispo_pl.data.tasks import parse_task, transform_observation
 
@@ -23,6 +23,15 @@ def _sample_index(episode_end: np.ndarray) -> np.ndarray:
     return rows[rows != episode_end]
 
 
+def _segment_end(episode_end: np.ndarray) -> np.ndarray:
+    """Two goal segments per episode: the first ends halfway through."""
+    rows = np.arange(len(episode_end))
+    first_row = np.r_[True, episode_end[1:] != episode_end[:-1]]
+    start = np.maximum.accumulate(np.where(first_row, rows, 0))
+    mid = (start + episode_end) // 2
+    return np.where(rows <= mid, mid, episode_end)
+
+
 def _indexed_dataset(lengths=LENGTHS, obs_dim=3, act_dim=2) -> EpisodeArrays:
     """A dataset whose every feature encodes its row number, so batches reveal their rows."""
     end = _episode_end(lengths)
@@ -33,6 +42,7 @@ def _indexed_dataset(lengths=LENGTHS, obs_dim=3, act_dim=2) -> EpisodeArrays:
         actions=np.stack([rows + 0.5 * d for d in range(act_dim)], axis=1),
         episode_end=end,
         sample_index=_sample_index(end),
+        segment_end=_segment_end(end),
     )
 
 
@@ -226,3 +236,49 @@ def test_sampler_on_variant_data(tiny_umaze):
         i = int(np.flatnonzero((data.observations == row_obs).all(axis=1))[0])
         episode = slice(i, int(data.episode_end[i]) + 1)
         assert (data.positions[episode] == goal).all(axis=1).any()
+
+
+# --- goal segments -------------------------------------------------------------------------
+
+
+def test_goal_segment_ends_mark_where_each_goal_was_reached():
+    goals = np.array([[0, 0], [0, 0], [1, 1], [1, 1], [1, 1], [2, 2]], dtype=float)
+    np.testing.assert_array_equal(goal_segment_ends(goals), [2, 2, 5, 5, 5, 5])
+    np.testing.assert_array_equal(goal_segment_ends(np.zeros((4, 2))), [3, 3, 3, 3])
+
+
+@pytest.mark.parametrize("strategy", ["exponential", "uniform", "geometric"])
+def test_segment_horizon_keeps_goals_in_their_segment_but_not_subgoals(strategy):
+    data = _indexed_dataset()
+    cfg = HERConfig(waysteps=40, temperature=200.0, strategy=strategy, goal_horizon="segment")
+    index = data.sample_index
+    goal, subgoal = relabel_indices(
+        index, data.episode_end, cfg, np.random.default_rng(0), data.segment_end
+    )
+    assert (goal >= index).all() and (goal <= data.segment_end[index]).all()
+    assert (subgoal <= data.episode_end[index]).all()
+    assert (subgoal > data.segment_end[index]).any()  # subgoals still run across goal switches
+    episode_goal, _ = relabel_indices(
+        index, data.episode_end, HERConfig(40, 200.0, strategy), np.random.default_rng(0)
+    )
+    assert (episode_goal > data.segment_end[index]).any()  # the reference horizon does cross
+
+
+def test_segment_horizon_needs_segment_ends():
+    data = _indexed_dataset()
+    with pytest.raises(ValueError, match="segment_end"):
+        relabel_indices(
+            data.sample_index,
+            data.episode_end,
+            HERConfig(goal_horizon="segment"),
+            np.random.default_rng(0),
+        )
+
+
+def test_sampler_uses_segment_ends(tmp_path):
+    data = _indexed_dataset()
+    sampler = HERSampler(data, HERConfig(5, 500.0, goal_horizon="segment"), batch_size=512)
+    batch = sampler.sample()
+    rows = batch["position"][:, 0].long().numpy()
+    goal_rows = batch["goal"][:, 0].long().numpy()
+    assert (goal_rows <= data.segment_end[rows]).all()

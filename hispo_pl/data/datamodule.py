@@ -9,7 +9,7 @@ import torch
 from torch.utils.data import DataLoader, IterableDataset
 
 from .datasets import EpisodeArrays, load_episodes
-from .sampler import HERConfig, HERSampler, Strategy
+from .sampler import HERConfig, HERSampler, Horizon, Strategy
 from .tasks import Task, parse_stream, parse_task
 
 
@@ -38,6 +38,8 @@ class TaskDataModule(L.LightningDataModule):
         waysteps: subgoal distance; default per maze from the paper.
         her_temperature: mean goal offset (steps); default per maze from the paper.
         her_strategy: exponential | uniform | geometric.
+        goal_horizon: clip relabelled goals at the ``episode`` end or at the ``segment`` end
+            (the point where the expert reached the goal it was heading for).
         steps_per_epoch: batches per epoch (Trainer's ``max_steps`` bounds the total).
         seed: sampler seed.
         stream: a stream name (``pointmaze-1``) or list of task specs: ``hispo-pl fit`` then
@@ -53,6 +55,7 @@ class TaskDataModule(L.LightningDataModule):
         waysteps: int | None = None,
         her_temperature: float | None = None,
         her_strategy: Strategy = "exponential",
+        goal_horizon: Horizon = "episode",
         steps_per_epoch: int = 1000,
         seed: int = 0,
         stream: str | list[str] | None = None,
@@ -70,6 +73,7 @@ class TaskDataModule(L.LightningDataModule):
             if her_temperature is not None
             else self.task.defaults.her_temperature,
             strategy=her_strategy,
+            goal_horizon=goal_horizon,
         )
         self.steps_per_epoch = steps_per_epoch
         self.seed = seed

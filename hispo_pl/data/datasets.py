@@ -48,7 +48,10 @@ class EpisodeArrays:
 
     An episode of T steps has T + 1 rows (the final observation has a zero action); only
     ``sample_index`` rows carry an action. ``episode_end[i]`` is the last row of row i's episode,
-    which is what HER needs to relabel goals with index arithmetic alone.
+    which is what HER needs to relabel goals with index arithmetic alone. ``segment_end[i]`` is
+    the last row of row i's goal segment: in continuing episodes the expert heads for one goal
+    until it reaches it, then for the next, so a relabelled goal beyond the segment may lie
+    behind a detour; without goal switches it equals ``episode_end``.
     """
 
     observations: np.ndarray  # [N, obs_dim] float32, proprioceptive features
@@ -56,6 +59,7 @@ class EpisodeArrays:
     actions: np.ndarray  # [N, action_dim] float32
     episode_end: np.ndarray  # [N] int64
     sample_index: np.ndarray  # [M] int64, rows with an action
+    segment_end: np.ndarray  # [N] int64, last row of the row's goal segment (<= episode_end)
 
     @property
     def n_episodes(self) -> int:
@@ -70,9 +74,20 @@ class EpisodeArrays:
         )
 
 
+def goal_segment_ends(desired_goal: np.ndarray) -> np.ndarray:
+    """For each row of one episode, the (episode-local) row at which its goal was reached: the
+    first row showing the next goal, or the last row. Rows of one goal form a segment."""
+    n = len(desired_goal)
+    changes = np.flatnonzero(np.any(desired_goal[1:] != desired_goal[:-1], axis=-1)) + 1
+    bounds = np.append(changes, n - 1)  # inclusive end of each segment
+    starts = np.concatenate([[0], changes])
+    return np.repeat(bounds, np.diff(np.append(starts, n)))
+
+
 def episodes_to_arrays(episodes) -> EpisodeArrays:
-    """Flatten Minari episodes (dict observations with ``observation`` and ``achieved_goal``)."""
-    obs, pos, act, end, idx = [], [], [], [], []
+    """Flatten Minari episodes (dict observations with ``observation`` and ``achieved_goal``;
+    ``desired_goal``, when present, marks goal segments)."""
+    obs, pos, act, end, idx, seg = [], [], [], [], [], []
     start = 0
     for ep in episodes:
         o = np.asarray(ep.observations["observation"], dtype=np.float32)
@@ -84,10 +99,15 @@ def episodes_to_arrays(episodes) -> EpisodeArrays:
         act.append(a)
         end.append(np.full(n, start + n - 1, dtype=np.int64))
         idx.append(np.arange(start, start + n - 1, dtype=np.int64))
+        goals = ep.observations.get("desired_goal")
+        seg.append(
+            start
+            + (goal_segment_ends(np.asarray(goals)) if goals is not None else np.full(n, n - 1))
+        )
         start += n
     if not obs:
         raise ValueError("dataset has no episodes")
-    return EpisodeArrays(*(np.concatenate(x) for x in (obs, pos, act, end, idx)))
+    return EpisodeArrays(*(np.concatenate(x) for x in (obs, pos, act, end, idx, seg)))
 
 
 def load_episodes(source: str | Task, *, generate_if_missing: bool = True) -> EpisodeArrays:

@@ -11,6 +11,7 @@ import torch
 from .datasets import EpisodeArrays
 
 Strategy = Literal["exponential", "uniform", "geometric"]
+Horizon = Literal["episode", "segment"]
 
 
 @dataclass(frozen=True)
@@ -25,17 +26,32 @@ class HERConfig:
     """exponential: offset ~ Exp(temperature); uniform: U{i..end}; geometric: Geom(1/temp)."""
     jitter: int = 2
     """Subgoal index jitter, uniform in {-jitter..jitter}."""
+    goal_horizon: Horizon = "episode"
+    """Where goals are clipped: at the episode end (the reference), or at the end of the goal
+    segment (the expert's path to the goal it was heading for), which keeps relabelled goals
+    off the detours that goal switches put in continuing episodes."""
 
 
 def relabel_indices(
-    index: np.ndarray, episode_end: np.ndarray, cfg: HERConfig, rng: np.random.Generator
+    index: np.ndarray,
+    episode_end: np.ndarray,
+    cfg: HERConfig,
+    rng: np.random.Generator,
+    segment_end: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Goal and subgoal row for each sampled row ``index``, clipped to its episode.
 
-    goal j = clip(i + offset, i, end) with the offset drawn by ``cfg.strategy``;
-    subgoal j' = clip(i + waysteps + U{-jitter..jitter}, i, end).
+    goal j = clip(i + offset, i, end) with the offset drawn by ``cfg.strategy`` and ``end`` the
+    episode's or, with ``goal_horizon="segment"``, the goal segment's last row;
+    subgoal j' = clip(i + waysteps + U{-jitter..jitter}, i, episode end).
     """
-    end = episode_end[index]
+    episode = episode_end[index]
+    if cfg.goal_horizon == "segment":
+        if segment_end is None:
+            raise ValueError("goal_horizon='segment' needs the data's segment_end")
+        end = segment_end[index]
+    else:
+        end = episode
     n = len(index)
     if cfg.strategy == "exponential":
         offset = np.rint(rng.exponential(cfg.temperature, n)).astype(np.int64)
@@ -47,7 +63,7 @@ def relabel_indices(
         raise ValueError(f"unknown HER strategy {cfg.strategy!r}")
     goal = np.minimum(index + offset, end)
     jitter = rng.integers(-cfg.jitter, cfg.jitter + 1, n)
-    subgoal = np.clip(index + cfg.waysteps + jitter, index, end)
+    subgoal = np.clip(index + cfg.waysteps + jitter, index, episode)
     return goal, subgoal
 
 
@@ -67,12 +83,13 @@ class HERSampler:
         self._pos = torch.from_numpy(np.ascontiguousarray(data.positions, dtype=np.float32))
         self._act = torch.from_numpy(np.ascontiguousarray(data.actions, dtype=np.float32))
         self._end = data.episode_end
+        self._segment_end = data.segment_end
         self._index = data.sample_index
 
     def sample(self, batch_size: int | None = None) -> dict[str, torch.Tensor]:
         n = batch_size or self.batch_size
         i = self._index[self.rng.integers(0, len(self._index), n)]
-        goal, subgoal = relabel_indices(i, self._end, self.cfg, self.rng)
+        goal, subgoal = relabel_indices(i, self._end, self.cfg, self.rng, self._segment_end)
         i, goal, subgoal = (torch.from_numpy(x) for x in (i, goal, subgoal))
         return {
             "observation": self._obs[i],

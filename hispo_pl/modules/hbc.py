@@ -72,11 +72,14 @@ class HBC(GoalConditionedBC):
         dropout: float = 0.1,
         lr: float = 3e-4,
         lr_schedule: Literal["cosine", "constant"] = "cosine",
+        high_log_std: float | None = None,
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
         f = feature_dim(goal_dim)
-        self.high = GaussianPolicy(f + obs_dim + 2 * goal_dim, high_hidden, goal_dim, dropout)
+        self.high = GaussianPolicy(
+            f + obs_dim + 2 * goal_dim, high_hidden, goal_dim, dropout, fixed_log_std=high_log_std
+        )
         self.low = GaussianPolicy(f + obs_dim, low_hidden, action_dim, dropout)
 
     @staticmethod

@@ -179,16 +179,23 @@ class HiSPO(GoalConditionedBC):
         chunk: int = 64,
     ) -> Tensor:
         """Loss of each candidate weight vector ``alphas`` [S, K] on ``batch``, shape [S]:
-        one batched forward per chunk of candidates, deterministic predictions (eval mode)."""
+        one batched forward per chunk of candidates, deterministic predictions (eval mode,
+        whatever the module's mode; the mode is restored afterwards)."""
         x, target = self._io(subspace, batch)
+        policy = self.policies[subspace]
+        was_training = policy.training
+        policy.eval()  # dropout off: every candidate is scored on the same predictions
         out = []
-        for part in alphas.split(chunk):
-            mean, log_std = self.policies[subspace](x, part)  # [M, B, d]
-            if loss == "mse":
-                out.append((mean - target).pow(2).sum(-1).mean(-1))
-            else:
-                z = (target - mean) * torch.exp(-log_std)
-                out.append((0.5 * z.pow(2) + log_std).sum(-1).mean(-1))
+        try:
+            for part in alphas.split(chunk):
+                mean, log_std = policy(x, part)  # [M, B, d]
+                if loss == "mse":
+                    out.append((mean - target).pow(2).sum(-1).mean(-1))
+                else:
+                    z = (target - mean) * torch.exp(-log_std)
+                    out.append((0.5 * z.pow(2) + log_std).sum(-1).mean(-1))
+        finally:
+            policy.train(was_training)
         return torch.cat(out)
 
     # --- training and acting --------------------------------------------------------------

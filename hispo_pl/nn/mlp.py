@@ -82,7 +82,8 @@ def split_gaussian(raw: Tensor, out_dim: int, log_std_min: float, log_std_max: f
 
 
 class GaussianPolicy(nn.Module):
-    """A diagonal Gaussian over ``out_dim`` values with a learned, softly clamped log-std."""
+    """A diagonal Gaussian over ``out_dim`` values with a learned, softly clamped log-std, or a
+    fixed one (``fixed_log_std``: the NLL is then a scaled squared error on the mean)."""
 
     def __init__(
         self,
@@ -92,14 +93,20 @@ class GaussianPolicy(nn.Module):
         dropout: float = 0.1,
         log_std_min: float = -5.0,
         log_std_max: float = 1.0,
+        fixed_log_std: float | None = None,
     ):
         super().__init__()
         self.out_dim = out_dim
         self.log_std_min, self.log_std_max = log_std_min, log_std_max
-        self.net = ResidualMLP(in_dim, hidden, 2 * out_dim, dropout)
+        self.fixed_log_std = fixed_log_std
+        heads = out_dim if fixed_log_std is not None else 2 * out_dim
+        self.net = ResidualMLP(in_dim, hidden, heads, dropout)
 
     def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
-        return split_gaussian(self.net(x), self.out_dim, self.log_std_min, self.log_std_max)
+        raw = self.net(x)
+        if self.fixed_log_std is not None:
+            return raw, torch.full_like(raw, self.fixed_log_std)
+        return split_gaussian(raw, self.out_dim, self.log_std_min, self.log_std_max)
 
 
 def gaussian_nll(mean: Tensor, log_std: Tensor, target: Tensor) -> Tensor:
