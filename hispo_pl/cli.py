@@ -4,6 +4,8 @@
   ``--print_config`` / dotted overrides such as ``--trainer.max_steps 2000``).
 - ``hispo-pl data generate pointmaze-umaze``: make a local expert dataset.
 - ``hispo-pl data list``: the datasets stored locally.
+- ``hispo-pl evaluate --ckpt RUN/task_04.ckpt --task pointmaze-medium-IO [--json]``: roll out
+  any checkpoint on any task.
 """
 
 from __future__ import annotations
@@ -211,11 +213,63 @@ def _quiet_known_warnings() -> None:
         warnings.filterwarnings("ignore", message=pattern)
 
 
+def evaluate_main(argv: list[str]) -> int:
+    """``hispo-pl evaluate``: any checkpoint on any task, seen or not."""
+    from .data.tasks import parse_task
+    from .evaluation import RolloutEvaluator, module_policy
+    from .modules.hbc import GoalConditionedBC
+
+    parser = argparse.ArgumentParser(
+        prog="hispo-pl evaluate", description="Roll out a checkpoint's policy on a task"
+    )
+    parser.add_argument("--ckpt", required=True, help="a task_XX.ckpt of a stream run, or any fit")
+    parser.add_argument("--task", required=True, help="task spec, e.g. pointmaze-medium-IO")
+    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--as-task",
+        type=int,
+        default=None,
+        help="act with the policy of the stream's task K (1-based); default: the last trained",
+    )
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--num_threads", type=int, default=0)
+    args = parser.parse_args(argv)
+    set_num_threads(args.num_threads)
+    if not Path(args.ckpt).exists():
+        parser.error(f"no checkpoint at {args.ckpt}")
+    task = parse_task(args.task)
+    module = GoalConditionedBC.from_checkpoint_file(args.ckpt)
+    as_task = module.task_index if args.as_task is None else args.as_task - 1
+    evaluator = RolloutEvaluator(task, args.episodes, args.seed)
+    result = evaluator.run(module_policy(module, task=as_task), progress=not args.json)
+    out = {
+        "checkpoint": args.ckpt,
+        "method": type(module).__name__,
+        "task": task.spec,
+        "as_task": as_task + 1,
+        "episodes": result.episodes,
+        "success": result.success,
+        "episode_length": result.episode_length,
+    }
+    if args.json:
+        print(json.dumps(out))
+    else:
+        print(
+            f"[hispo-pl] {out['method']} ({args.ckpt}, policy of task {out['as_task']}) on "
+            f"{task}: success {100 * result.success:.1f}% over {result.episodes} episodes, "
+            f"mean episode length {result.episode_length:.1f}"
+        )
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     _quiet_known_warnings()
     if argv and argv[0] == "data":
         return data_main(argv[1:])
+    if argv and argv[0] == "evaluate":
+        return evaluate_main(argv[1:])
     run_lightning_cli(argv)
     return 0
 

@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import json
 
-import hispo_pl.callbacks.subspace as subspace_callbacks
 import lightning as L
 import numpy as np
 import pytest
 import torch
+
+import hispo_pl.callbacks.subspace as subspace_callbacks
 from hispo_pl.callbacks import (
     AnchorExtension,
     DirichletEvaluation,
@@ -18,7 +19,6 @@ from hispo_pl.callbacks import (
     SubspacePruning,
 )
 from hispo_pl.callbacks.subspace import SearchResult
-
 from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.loop import load_module_state
 from hispo_pl.modules.hbc import HBC

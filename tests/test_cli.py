@@ -59,7 +59,24 @@ def test_fit_trains_evaluates_logs_and_prints_success(tiny_umaze, tmp_path, caps
     success = acc.Scalars("eval/success")
     assert [s.step for s in success] == [20, 40]  # periodic, then at the end of training
     assert all(0.0 <= s.value <= 1.0 for s in success)
-    assert list(tmp_path.rglob("*.ckpt")), "no checkpoint written"
+    checkpoints = list(tmp_path.rglob("*.ckpt"))
+    assert checkpoints, "no checkpoint written"
+
+    # the checkpoint alone rebuilds the policy; evaluate it on a task it never saw
+    capsys.readouterr()
+    args = ["evaluate", "--ckpt", str(checkpoints[0]), "--task", "pointmaze-umaze-IA[6]"]
+    assert main([*args, "--episodes", "3", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["method"] == "HBC" and report["task"] == "pointmaze-umaze-IA[6]"
+    assert report["episodes"] == 3 and 0.0 <= report["success"] <= 1.0
+    assert 0 < report["episode_length"] <= 300
+
+
+def test_evaluate_rejects_a_missing_checkpoint(tmp_path, capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["evaluate", "--ckpt", str(tmp_path / "nope.ckpt"), "--task", "pointmaze-umaze"])
+    assert done.value.code == 2
+    assert "no checkpoint at" in capsys.readouterr().err
 
 
 def test_flat_bc_config_runs(tiny_umaze, tmp_path, capsys):

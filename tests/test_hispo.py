@@ -445,7 +445,8 @@ def test_checkpoint_round_trip_restores_structure_and_every_task(tmp_path):
     assert (m.n_anchors("high"), m.n_anchors("low"), m.n_tasks) == (4, 2, 3)
 
     raw = torch.load(path, map_location="cpu", weights_only=True)
-    assert raw["hispo_task_index"] == 2
+    assert raw["hispo_pl_task_index"] == 2
+    assert raw["hispo_pl_class"] == "hispo_pl.modules.hispo.HiSPO"
 
     fresh = _module(seed=99)
     assert fresh.n_anchors("high") == fresh.n_anchors("low") == 1

@@ -10,13 +10,13 @@ import shutil
 import lightning as L
 import pytest
 import torch
+
 from hispo_pl.callbacks import (
     AnchorExtension,
     DirichletEvaluation,
     RolloutEvaluation,
     SubspacePruning,
 )
-
 from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.loop import PROGRESS_FILE, RESULTS_FILE, ContinualLoop, checkpoint_path
 from hispo_pl.metrics import module_bytes

@@ -28,6 +28,32 @@ class GoalConditionedBC(L.LightningModule):
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         raise NotImplementedError
 
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        # enough to rebuild the module from the file alone (``hispo-pl evaluate``)
+        checkpoint["hispo_pl_class"] = f"{type(self).__module__}.{type(self).__qualname__}"
+        checkpoint["hispo_pl_task_index"] = self.task_index
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        self.task_index = int(checkpoint.get("hispo_pl_task_index", 0))
+
+    @classmethod
+    def from_checkpoint_file(cls, path: str) -> GoalConditionedBC:
+        """Rebuild whichever method wrote ``path`` (its class is stored in the file), on CPU;
+        the file holds plain tensors and values only (``weights_only=True``)."""
+        import importlib
+
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+        if "hispo_pl_class" not in checkpoint:
+            raise ValueError(f"{path} was not written by a hispo-pl module (no hispo_pl_class)")
+        module_name, _, name = checkpoint["hispo_pl_class"].rpartition(".")
+        method = getattr(importlib.import_module(module_name), name)
+        if not issubclass(method, cls):
+            raise TypeError(f"{path} holds a {name}, not a {cls.__name__}")
+        module = method(**checkpoint["hyper_parameters"])
+        module.on_load_checkpoint(checkpoint)
+        module.load_state_dict(checkpoint["state_dict"])
+        return module.eval()
+
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
         losses = self.losses(batch)
         self.log_dict(

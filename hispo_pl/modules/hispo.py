@@ -254,12 +254,9 @@ class HiSPO(GoalConditionedBC):
 
     # --- checkpoints ----------------------------------------------------------------------
 
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        checkpoint["hispo_task_index"] = self.task_index
-
     def on_load_checkpoint(self, checkpoint: dict) -> None:
+        super().on_load_checkpoint(checkpoint)
         self.restore_structure(checkpoint["state_dict"])
-        self.task_index = int(checkpoint.get("hispo_task_index", self.n_tasks))
 
     def restore_structure(self, state_dict: dict[str, Tensor]) -> None:
         """Resize anchors, scores and stored weights to a state dict's, before it loads."""
