@@ -49,7 +49,9 @@ class GoalConditionedBC(L.LightningModule):
         method = getattr(importlib.import_module(module_name), name)
         if not issubclass(method, cls):
             raise TypeError(f"{path} holds a {name}, not a {cls.__name__}")
-        module = method(**checkpoint["hyper_parameters"])
+        # LightningCLI adds private entries such as ``_class_path`` to the hyperparameters
+        hparams = {k: v for k, v in checkpoint["hyper_parameters"].items() if not k.startswith("_")}
+        module = method(**hparams)
         module.on_load_checkpoint(checkpoint)
         module.load_state_dict(checkpoint["state_dict"])
         return module.eval()
