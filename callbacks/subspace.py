@@ -17,6 +17,7 @@ from typing_extensions import override
 from ..data.sampler import HERSampler
 from ..decisions import keep_previous, previous_subspace_candidates
 from ..modules.hispo import SubspacePolicy
+from ..nn import eval_mode
 
 
 def _require_subspace_policy(pl_module: L.LightningModule, who: str) -> SubspacePolicy:
@@ -97,10 +98,8 @@ class DirichletEvaluation(L.Callback):
             {k: v.to(device) for k, v in sampler.sample().items()} for _ in range(self.n_batches)
         ]
         generator = torch.Generator().manual_seed(self.seed)
-        was_training = module.training
-        module.eval()
         results = {}
-        try:
+        with eval_mode(module):
             for name in module.subspace_names:
                 alpha_curr = module.current_alpha(name).to(device)
                 l_curr = self._mean_loss(module, name, alpha_curr[None], batches)[0].item()
@@ -113,8 +112,6 @@ class DirichletEvaluation(L.Callback):
                     result.l_prev, result.alpha_prev = losses[best].item(), cands[best].tolist()
                     self._save(trainer, module, name, cands, losses, l_curr)
                 results[name] = result
-        finally:
-            module.train(was_training)
         return results
 
     def _mean_loss(self, module, name, alphas, batches) -> torch.Tensor:

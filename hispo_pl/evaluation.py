@@ -12,6 +12,7 @@ from tqdm.auto import tqdm
 from .data.tasks import Task, parse_task
 from .envs import make_env
 from .envs.mazes import free_cells, maze_array
+from .nn import eval_mode
 
 PolicyFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
 """(observation [B, obs], position [B, 2], goal [B, 2]) -> action [B, act], deterministic."""
@@ -113,13 +114,9 @@ def module_policy(module, task: int | None = None) -> PolicyFn:
     eval mode; ``task`` picks the task's policy for methods that keep one per task."""
 
     def policy(observation, position, goal):
-        was_training = module.training
-        module.eval()
-        try:
+        with eval_mode(module):
             device = next(module.parameters()).device
             obs, pos, goal = observation.to(device), position.to(device), goal.to(device)
             return module.act(obs, pos, goal, task=task)
-        finally:
-            module.train(was_training)
 
     return policy

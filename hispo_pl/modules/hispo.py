@@ -14,6 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from ..nn import eval_mode
 from ..nn.mlp import feature_dim, gaussian_nll, split_gaussian
 from ..nn.subspace import AnchorInit, SubspaceResidualMLP, cosine_similarity_penalty
 from .hbc import HBC, GoalConditionedBC
@@ -182,11 +183,9 @@ class HiSPO(GoalConditionedBC):
         one batched forward per chunk of candidates, deterministic predictions (eval mode,
         whatever the module's mode; the mode is restored afterwards)."""
         x, target = self._io(subspace, batch)
-        policy = self.policies[subspace]
-        was_training = policy.training
-        policy.eval()  # dropout off: every candidate is scored on the same predictions
         out = []
-        try:
+        # dropout off: every candidate is scored on the same, deterministic predictions
+        with eval_mode(self.policies[subspace]) as policy:
             for part in alphas.split(chunk):
                 mean, log_std = policy(x, part)  # [M, B, d]
                 if loss == "mse":
@@ -194,8 +193,6 @@ class HiSPO(GoalConditionedBC):
                 else:
                     z = (target - mean) * torch.exp(-log_std)
                     out.append((0.5 * z.pow(2) + log_std).sum(-1).mean(-1))
-        finally:
-            policy.train(was_training)
         return torch.cat(out)
 
     # --- training and acting --------------------------------------------------------------
