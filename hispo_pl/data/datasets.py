@@ -209,7 +209,10 @@ def make_expert(name: str, env):
         from ..envs.experts import PointMazeExpert
 
         return PointMazeExpert(env)
-    raise NotImplementedError(f"no expert for family {family!r} yet")
+    raise NotImplementedError(
+        f"no scripted expert for {family!r} in this release: only PointMaze data can be generated "
+        "here; AntMaze data generation is planned (the D4RL ids load when online)"
+    )
 
 
 def generate_dataset(
