@@ -15,7 +15,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ..nn import eval_mode
-from ..nn.mlp import feature_dim, gaussian_nll, split_gaussian
+from ..nn.mlp import GaussianPolicy, feature_dim, gaussian_nll
 from ..nn.subspace import AnchorInit, SubspaceResidualMLP, cosine_similarity_penalty
 from .hbc import HBC, GoalConditionedBC
 
@@ -38,26 +38,13 @@ class SubspacePolicy(Protocol):
     def set_task_alpha(self, task: int, subspace: str, alpha: Tensor) -> None: ...
 
 
-class SubspaceGaussianPolicy(nn.Module):
+class SubspaceGaussianPolicy(GaussianPolicy):
     """A Gaussian policy whose network is a subspace; ``alpha`` [K] or a batch of them [M, K]."""
 
-    def __init__(
-        self,
-        in_dim: int,
-        hidden: int,
-        out_dim: int,
-        dropout: float = 0.1,
-        log_std_min: float = -5.0,
-        log_std_max: float = 1.0,
-    ):
-        super().__init__()
-        self.out_dim = out_dim
-        self.log_std_min, self.log_std_max = log_std_min, log_std_max
-        self.net = SubspaceResidualMLP(in_dim, hidden, 2 * out_dim, dropout)
+    network = SubspaceResidualMLP
 
     def forward(self, x: Tensor, alpha: Tensor) -> tuple[Tensor, Tensor]:
-        raw = self.net(x, alpha)
-        return split_gaussian(raw, self.out_dim, self.log_std_min, self.log_std_max)
+        return self.distribution(self.net(x, alpha))
 
 
 def training_alphas(scores: Tensor, groups: int, noise: float, generator=None) -> Tensor:

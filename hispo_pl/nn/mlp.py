@@ -83,7 +83,10 @@ def split_gaussian(raw: Tensor, out_dim: int, log_std_min: float, log_std_max: f
 
 class GaussianPolicy(nn.Module):
     """A diagonal Gaussian over ``out_dim`` values with a learned, softly clamped log-std, or a
-    fixed one (``fixed_log_std``: the NLL is then a scaled squared error on the mean)."""
+    fixed one (``fixed_log_std``: the NLL is then a scaled squared error on the mean).
+    Subclasses swap the network through ``network`` (e.g. a subspace of networks)."""
+
+    network: type[nn.Module] = ResidualMLP
 
     def __init__(
         self,
@@ -100,10 +103,13 @@ class GaussianPolicy(nn.Module):
         self.log_std_min, self.log_std_max = log_std_min, log_std_max
         self.fixed_log_std = fixed_log_std
         heads = out_dim if fixed_log_std is not None else 2 * out_dim
-        self.net = ResidualMLP(in_dim, hidden, heads, dropout)
+        self.net = self.network(in_dim, hidden, heads, dropout)
 
     def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
-        raw = self.net(x)
+        return self.distribution(self.net(x))
+
+    def distribution(self, raw: Tensor) -> tuple[Tensor, Tensor]:
+        """Mean and log-std from the network's raw outputs."""
         if self.fixed_log_std is not None:
             return raw, torch.full_like(raw, self.fixed_log_std)
         return split_gaussian(raw, self.out_dim, self.log_std_min, self.log_std_max)
