@@ -136,7 +136,8 @@ def test_stream_evaluation_row_covers_the_whole_stream(first_task):
 def test_extension_happens_before_the_optimiser_and_a_huge_eps_prunes(first_task, tmp_path):
     module = _after_first_task()
     load_module_state(module, first_task["ckpt"])
-    old = {id(p) for p in module.parameters()}
+    old_params = list(module.parameters())  # kept alive: a freed object's id can be reused
+    old = {id(p) for p in old_params}
     recorder = RecordOptimizer()
     _fit(module, 1, tmp_path, [*_callbacks(eps=1e9), recorder])
 
