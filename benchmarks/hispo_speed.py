@@ -2,12 +2,16 @@
 
     python benchmarks/hispo_speed.py [--threads 1] [--candidates 1024] [--batches 16]
         [--batch-size 1024] [--anchors 4] [--one-at-a-time-sample 64] [--steps 100]
+        [--survivors 32] [--probe-samples 256] [--precision bf16|32]
 
-1. Scores ``--candidates`` weight vectors over ``--anchors`` anchors (low subspace, the
-   expensive one) on ``--batches`` batches: vectorised (``HiSPO.score_alphas``, chunks of
-   candidates in one batched forward) against one candidate at a time (an unbatched forward per
-   candidate and batch). The one-at-a-time time is measured on ``--one-at-a-time-sample``
-   candidates and scaled up.
+1. Searches ``--candidates`` weight vectors over ``--anchors`` anchors (low subspace, the
+   expensive one) on ``--batches`` batches, three ways: one candidate at a time (an unbatched
+   float32 forward per candidate and batch; timed on ``--one-at-a-time-sample`` candidates
+   and scaled up), vectorised and exhaustive (``HiSPO.score_alphas``, chunks of candidates in
+   one batched forward, float32), and the callback's default: vectorised and raced
+   (``hispo_pl.search.race_candidates``: all candidates ranked on ``--probe-samples``, the
+   ``--survivors`` best scored on every batch, in ``--precision``). It prints each time, the
+   speed-ups over one at a time, and whether the race found the exhaustive winner.
 2. Gradient steps per second of HiSPO (with ``--anchors`` anchors) and of HBC, same batches.
 Synthetic batches: speed does not depend on the data.
 """
@@ -21,6 +25,7 @@ import torch
 
 from hispo_pl.decisions import previous_subspace_candidates
 from hispo_pl.modules import HBC, HiSPO
+from hispo_pl.search import race_candidates
 
 
 def batch(n: int, obs_dim: int = 4, action_dim: int = 2) -> dict[str, torch.Tensor]:
@@ -57,11 +62,14 @@ def main() -> None:
     p.add_argument("--anchors", type=int, default=4)
     p.add_argument("--one-at-a-time-sample", type=int, default=64)
     p.add_argument("--steps", type=int, default=100)
+    p.add_argument("--survivors", type=int, default=32)
+    p.add_argument("--probe-samples", type=int, default=256)
+    p.add_argument("--precision", choices=["32", "bf16"], default="bf16")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
 
-    model = HiSPO(4, 2)
+    model = HiSPO(4, 2, anchor_init="random")  # distinct anchors: a real landscape
     for _ in range(args.anchors - 1):
         for name in model.subspace_names:
             model.add_anchor(name)
@@ -75,24 +83,47 @@ def main() -> None:
         f"batches={args.batches}x{args.batch_size}"
     )
 
-    t = time.perf_counter()
-    vec = torch.stack([model.score_alphas("low", cands, b) for b in batches]).mean(0)
-    t_vec = time.perf_counter() - t
+    def scorer(precision: str):
+        return lambda alphas, b: model.score_alphas("low", alphas, b, precision=precision)
 
+    probe = {k: v[: args.probe_samples] for k, v in batches[0].items()}
+
+    def timed(fn):
+        t = time.perf_counter()
+        out = fn()
+        return out, time.perf_counter() - t
+
+    full, t_vec = timed(lambda: race_candidates(scorer("32"), cands, batches))
     sample = cands[: args.one_at_a_time_sample]
-    t = time.perf_counter()
     with torch.no_grad():
-        single = torch.stack(
-            [
-                torch.stack([model.score_alphas("low", a[None], b)[0] for b in batches]).mean()
-                for a in sample
-            ]
+        single, t_one = timed(
+            lambda: torch.stack(
+                [
+                    torch.stack([model.score_alphas("low", a[None], b)[0] for b in batches]).mean()
+                    for a in sample
+                ]
+            )
         )
-    t_one = (time.perf_counter() - t) * args.candidates / len(sample)
-    assert torch.allclose(single, vec[: len(sample)], rtol=1e-4, atol=1e-6)
+    t_one *= args.candidates / len(sample)
+    exhaustive = full.losses[torch.argsort(full.survivors)]  # back in candidate order
+    assert torch.allclose(single, exhaustive[: len(sample)], rtol=1e-4, atol=1e-6)
+    raced, t_race = timed(
+        lambda: race_candidates(scorer(args.precision), cands, batches, probe, args.survivors)
+    )
     print(
-        f"search (low subspace): vectorised {t_vec:.1f} s, one at a time {t_one:.1f} s "
-        f"(estimated from {len(sample)}), speed-up x{t_one / t_vec:.1f}"
+        f"search (low subspace), one candidate at a time (fp32): {t_one:.1f} s "
+        f"(estimated from {len(sample)})"
+    )
+    print(f"  vectorised, exhaustive (fp32): {t_vec:.1f} s, speed-up x{t_one / t_vec:.1f}")
+    print(
+        f"  vectorised, raced (probe {args.probe_samples} samples, {args.survivors} survivors, "
+        f"{args.precision}): {t_race:.1f} s, "
+        f"speed-up x{t_one / t_race:.1f}"
+    )
+    print(
+        f"  best candidate: exhaustive #{full.best} loss {full.best_loss:.5f}, "
+        f"raced #{raced.best} loss {raced.best_loss:.5f} "
+        f"(raced winner's exhaustive loss {exhaustive[raced.best]:.5f})"
     )
 
     train_batches = [batch(args.batch_size) for _ in range(8)]
