@@ -19,6 +19,7 @@ Synthetic batches: speed does not depend on the data.
 from __future__ import annotations
 
 import argparse
+import inspect
 import time
 
 import torch
@@ -26,6 +27,8 @@ import torch
 from hispo_pl.decisions import previous_subspace_candidates
 from hispo_pl.modules import HBC, HiSPO
 from hispo_pl.search import race_candidates
+
+DEFAULT_GROUPS = inspect.signature(HiSPO).parameters["alpha_groups"].default
 
 
 def batch(n: int, obs_dim: int = 4, action_dim: int = 2) -> dict[str, torch.Tensor]:
@@ -51,24 +54,8 @@ def steps_per_s(model, batches, n: int) -> float:
     return n / (time.perf_counter() - t)
 
 
-def main() -> None:
-    p = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--candidates", type=int, default=1024)
-    p.add_argument("--batches", type=int, default=16)
-    p.add_argument("--batch-size", type=int, default=1024)
-    p.add_argument("--anchors", type=int, default=4)
-    p.add_argument("--one-at-a-time-sample", type=int, default=64)
-    p.add_argument("--steps", type=int, default=100)
-    p.add_argument("--survivors", type=int, default=32)
-    p.add_argument("--probe-samples", type=int, default=256)
-    p.add_argument("--precision", choices=["32", "bf16"], default="bf16")
-    args = p.parse_args()
-    torch.set_num_threads(args.threads)
+def search_speed(args) -> None:
     torch.manual_seed(0)
-
     model = HiSPO(4, 2, anchor_init="random")  # distinct anchors: a real landscape
     for _ in range(args.anchors - 1):
         for name in model.subspace_names:
@@ -78,10 +65,7 @@ def main() -> None:
     cands = previous_subspace_candidates(
         args.candidates, args.anchors, torch.Generator().manual_seed(0)
     )
-    print(
-        f"threads={args.threads} anchors={args.anchors} candidates={args.candidates} "
-        f"batches={args.batches}x{args.batch_size}"
-    )
+    print(f"search: {args.candidates} candidates, {args.batches} batches")
 
     def scorer(precision: str):
         return lambda alphas, b: model.score_alphas("low", alphas, b, precision=precision)
@@ -126,8 +110,11 @@ def main() -> None:
         f"(raced winner's exhaustive loss {exhaustive[raced.best]:.5f})"
     )
 
+
+def training_speed(args) -> None:
+    torch.manual_seed(0)
     train_batches = [batch(args.batch_size) for _ in range(8)]
-    hispo = HiSPO(4, 2)
+    hispo = HiSPO(4, 2, alpha_groups=args.alpha_groups)
     for _ in range(args.anchors - 1):
         for name in hispo.subspace_names:
             hispo.add_anchor(name)
@@ -137,9 +124,35 @@ def main() -> None:
         steps_per_s(hbc, train_batches, args.steps),
     )
     print(
-        f"training: HiSPO {r_hispo:.1f} steps/s, HBC {r_hbc:.1f} steps/s, "
+        f"training ({args.alpha_groups} alpha groups): HiSPO {r_hispo:.1f} steps/s, "
+        f"HBC {r_hbc:.1f} steps/s, "
         f"ratio {r_hispo / r_hbc:.2f}"
     )
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--candidates", type=int, default=1024)
+    p.add_argument("--batches", type=int, default=16)
+    p.add_argument("--batch-size", type=int, default=1024)
+    p.add_argument("--anchors", type=int, default=4)
+    p.add_argument("--one-at-a-time-sample", type=int, default=64)
+    p.add_argument("--steps", type=int, default=100)
+    p.add_argument("--alpha-groups", type=int, default=DEFAULT_GROUPS)
+    p.add_argument("--survivors", type=int, default=32)
+    p.add_argument("--probe-samples", type=int, default=256)
+    p.add_argument("--precision", choices=["32", "bf16"], default="bf16")
+    p.add_argument("--only", choices=["search", "training"], help="run one of the two parts")
+    args = p.parse_args()
+    torch.set_num_threads(args.threads)
+    print(f"threads={args.threads} anchors={args.anchors} batch size={args.batch_size}")
+    if args.only != "training":
+        search_speed(args)
+    if args.only != "search":
+        training_speed(args)
 
 
 if __name__ == "__main__":

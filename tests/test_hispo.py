@@ -373,6 +373,7 @@ def test_grouped_forward_with_indivisible_batch(monkeypatch, batch_size, groups)
     monkeypatch.setattr(hispo_mod, "training_alphas", recording)
     m = _module(alpha_groups=16)
     m.add_anchor("high")
+    _perturb_newest(m, "high")  # identical anchors would leave the scores without gradient
     out = m.losses(_batch(batch_size))
     assert seen == [groups, groups]  # high, then low
     assert torch.isfinite(out["loss"])
