@@ -129,3 +129,20 @@ def results_row_table(R: ArrayLike) -> str:
     for label, row in zip(labels, cells, strict=True):
         lines.append(f"{label:<{label_w}}" + "".join(f"  {c:>{width}}" for c in row))
     return "\n".join(lines)
+
+
+def summarize_runs(results: list[dict]) -> dict[str, tuple[float, float]]:
+    """Mean and (population) standard deviation over runs of each stream metric, as the
+    paper's tables report them: PER, BWT, FWT (where every run has it), MEM, and the wall
+    time of a whole stream in minutes. ``results`` are ``results.json`` dicts."""
+    if not results:
+        raise ValueError("no runs to summarise")
+    columns = {
+        "PER": [r["PER"] for r in results],
+        "BWT": [r["BWT"] for r in results],
+        "MEM": [r["MEM"] for r in results],
+        "minutes": [sum(r["wall_time_s"]) / 60 for r in results],
+    }
+    if all("FWT" in r for r in results):
+        columns["FWT"] = [r["FWT"] for r in results]
+    return {k: (float(np.mean(v)), float(np.std(v))) for k, v in columns.items()}

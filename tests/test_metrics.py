@@ -14,6 +14,7 @@ from hispo_pl.metrics import (
     memory_ratio,
     module_bytes,
     results_row_table,
+    summarize_runs,
 )
 
 NAN = float("nan")
@@ -180,3 +181,18 @@ def test_results_row_table_one_decimal_and_wide_index():
     assert lines[-1].startswith("after T100")
     with pytest.raises(ValueError, match="2-D"):
         results_row_table([0.1, 0.2])
+
+
+def test_summarize_runs_mean_and_std_per_metric():
+    runs = [
+        {"PER": 0.9, "BWT": 0.0, "MEM": 2.0, "wall_time_s": [60, 60]},
+        {"PER": 1.0, "BWT": -0.02, "MEM": 3.0, "wall_time_s": [120, 120], "FWT": 0.1},
+    ]
+    s = summarize_runs(runs)
+    assert s["PER"] == pytest.approx((0.95, 0.05))
+    assert s["BWT"] == pytest.approx((-0.01, 0.01))
+    assert s["MEM"] == pytest.approx((2.5, 0.5))
+    assert s["minutes"] == pytest.approx((3.0, 1.0))
+    assert "FWT" not in s  # only one run has it: no mean over a subset
+    with pytest.raises(ValueError, match="no runs"):
+        summarize_runs([])
