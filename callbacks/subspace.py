@@ -76,6 +76,9 @@ class DirichletEvaluation(L.Callback):
         precision: ``32``, ``bf16`` (autocast; several times faster on CPUs with bf16 units),
             or ``auto``: bf16 where the device supports it natively.
         seed: seeds the batches and the draws.
+        every_n_steps: also search every this many training steps (0: only at the end), to
+            watch ``L_prev`` against ``L_curr`` while the new anchor learns: logged as
+            ``search/<subspace>/l_prev`` and ``l_curr``; nothing is decided or saved then.
     """
 
     def __init__(
@@ -87,7 +90,12 @@ class DirichletEvaluation(L.Callback):
         loss: Literal["mse", "nll"] = "mse",
         precision: Literal["auto", "32", "bf16"] = "auto",
         seed: int = 0,
+        every_n_steps: int = 0,
     ):
+        if every_n_steps < 0:
+            raise ValueError(
+                f"every_n_steps must be >= 0 (0: only at task end), got {every_n_steps}"
+            )
         self.n_candidates, self.n_batches, self.loss, self.seed = (
             n_candidates,
             n_batches,
@@ -95,6 +103,7 @@ class DirichletEvaluation(L.Callback):
             seed,
         )
         self.survivors, self.probe_samples, self.precision = survivors, probe_samples, precision
+        self.every_n_steps = every_n_steps
         self.results: dict[str, SearchResult] = {}
 
     @override
@@ -103,11 +112,24 @@ class DirichletEvaluation(L.Callback):
         self.results = {}
 
     @override
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        step = trainer.global_step
+        if not self.every_n_steps or step % self.every_n_steps or step >= trainer.max_steps:
+            return  # the last step's search is the task-end one
+        metrics = {}
+        for name, res in self._run_search(trainer, pl_module, save=False).items():
+            metrics[f"{pl_module.log_prefix}search/{name}/l_curr"] = res.l_curr
+            if res.l_prev is not None:
+                metrics[f"{pl_module.log_prefix}search/{name}/l_prev"] = res.l_prev
+        for logger in trainer.loggers:
+            logger.log_metrics(metrics, step=step)
+
+    @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self.results = self._run_search(trainer, pl_module)
 
     @torch.no_grad()
-    def _run_search(self, trainer: L.Trainer, module) -> dict[str, SearchResult]:
+    def _run_search(self, trainer: L.Trainer, module, save: bool = True) -> dict[str, SearchResult]:
         dm = trainer.datamodule
         sampler = HERSampler(dm.data, dm.her, dm.batch_size, seed=self.seed)
         device = module.device
@@ -134,7 +156,8 @@ class DirichletEvaluation(L.Callback):
                     cands = previous_subspace_candidates(self.n_candidates, k, generator).to(device)
                     race = race_candidates(score, cands, batches, probe, self.survivors)
                     result.l_prev, result.alpha_prev = race.best_loss, cands[race.best].tolist()
-                    self._save(trainer, module, name, cands, race, l_curr)
+                    if save:
+                        self._save(trainer, module, name, cands, race, l_curr)
                 results[name] = result
         return results
 

@@ -10,6 +10,7 @@ import lightning as L
 import numpy as np
 import pytest
 import torch
+from lightning.pytorch.loggers import Logger
 
 import hispo_pl.callbacks.subspace as subspace_callbacks
 from hispo_pl.callbacks import (
@@ -283,3 +284,54 @@ def test_subspace_callbacks_reject_a_plain_hbc(tiny_umaze, tmp_path, callback):
     cbs = [callback()] if callback is not SubspacePruning else [DirichletEvaluation(), callback()]
     hbc = HBC(obs_dim=4, action_dim=2, high_hidden=8, low_hidden=16)
     _fit_expecting(hbc, cbs, tmp_path, TypeError, "SubspacePolicy")
+
+
+class RecordLogger(Logger):
+    """Keeps every ``log_metrics`` call: (step, metrics)."""
+
+    def __init__(self):
+        super().__init__()
+        self.calls: list[tuple[int, dict]] = []
+
+    name, version = "record", 0
+
+    def log_metrics(self, metrics, step=None):
+        self.calls.append((step, dict(metrics)))
+
+    def log_hyperparams(self, params, *args, **kwargs):
+        pass
+
+
+def test_periodic_search_logs_losses_without_deciding(first_task, tmp_path):
+    module = _after_first_task()
+    load_module_state(module, first_task["ckpt"])
+    module.task_index = 1
+    logger = RecordLogger()
+    search = DirichletEvaluation(n_candidates=8, n_batches=2, every_n_steps=2)
+    trainer = L.Trainer(
+        max_steps=5,
+        accelerator="cpu",
+        logger=logger,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        default_root_dir=tmp_path,
+        callbacks=[AnchorExtension(), search],
+    )
+    trainer.fit(module, datamodule=TaskDataModule(STREAM[1], batch_size=64, stream=STREAM))
+    searched = [(step, m) for step, m in logger.calls if any("search/" in k for k in m)]
+    assert [step for step, _ in searched] == [2, 4]  # not at step 5: that is the task end
+    for _, m in searched:
+        assert set(m) == {f"search/{n}/{x}" for n in SUBSPACES for x in ("l_prev", "l_curr")}
+        assert all(v >= 0 for v in m.values())
+    # the periodic searches decide and save nothing; the task-end one saves its losses
+    assert [module.n_anchors(n) for n in SUBSPACES] == [2, 2]
+    assert sorted(p.name for p in (tmp_path / "search").iterdir()) == [
+        "task_02_high.npz",
+        "task_02_low.npz",
+    ]
+
+
+def test_periodic_search_rejects_a_negative_period():
+    with pytest.raises(ValueError, match="every_n_steps"):
+        DirichletEvaluation(every_n_steps=-1)
