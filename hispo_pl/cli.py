@@ -115,7 +115,9 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
 
     hp = model.hparams
     sizes = {k: hp[k] for k in ("obs_dim", "action_dim", "goal_dim") if k in hp}
-    widths = {k: hp[k] for k in ("high_hidden", "low_hidden", "dropout") if k in hp}
+    # the reference is the single-task HBC of the same architecture (a fixed high log-std
+    # drops the high policy's log-std head, so it matters too)
+    widths = {k: hp[k] for k in ("high_hidden", "low_hidden", "dropout", "high_log_std") if k in hp}
     reference = module_bytes(HBC(**sizes, **widths))
     scratch = None
     if config.get("scratch_results"):
