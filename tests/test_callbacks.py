@@ -10,6 +10,7 @@ import lightning as L
 import numpy as np
 import pytest
 import torch
+from helpers import quiet_trainer
 from lightning.pytorch.loggers import Logger
 
 import hispo_pl.callbacks.subspace as subspace_callbacks
@@ -59,13 +60,8 @@ def _callbacks(eps: float = 0.1, episodes: int = 2) -> list[L.Callback]:
 
 def _fit(module, task_index: int, root, callbacks, stream=STREAM) -> L.Trainer:
     module.task_index = task_index
-    trainer = L.Trainer(
+    trainer = quiet_trainer(
         max_steps=5,
-        accelerator="cpu",
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
         default_root_dir=root,
         callbacks=callbacks,
     )
@@ -308,13 +304,9 @@ def test_periodic_search_logs_losses_without_deciding(first_task, tmp_path):
     module.task_index = 1
     logger = RecordLogger()
     search = DirichletEvaluation(n_candidates=8, n_batches=2, every_n_steps=2)
-    trainer = L.Trainer(
+    trainer = quiet_trainer(
         max_steps=5,
-        accelerator="cpu",
         logger=logger,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
         default_root_dir=tmp_path,
         callbacks=[AnchorExtension(), search],
     )

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import copy
 
-import lightning as L
 import pytest
 import torch
+from helpers import quiet_trainer
 from torch.utils.data import DataLoader
 
 import hispo_pl.modules.hispo as hispo_mod
@@ -426,14 +426,7 @@ def _saved_by_trainer(module: HiSPO, path) -> None:
     """A short real fit (so the newest anchors and the scores have trained values), then
     ``trainer.save_checkpoint`` exactly as the ContinualLoop does."""
     batches = [_batch(16, seed=s) for s in range(3)]
-    trainer = L.Trainer(
-        max_steps=3,
-        accelerator="cpu",
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-    )
+    trainer = quiet_trainer(max_steps=3)
     trainer.fit(module, train_dataloaders=DataLoader(batches, batch_size=None))
     trainer.save_checkpoint(path)
 

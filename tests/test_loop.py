@@ -10,6 +10,7 @@ import shutil
 import lightning as L
 import pytest
 import torch
+from helpers import quiet_trainer
 
 from hispo_pl.callbacks import (
     AnchorExtension,
@@ -54,13 +55,8 @@ def _loop(run_dir, stream=STREAM, stop_at: int | None = None, seed: int | None =
         if k == stop_at:
             raise Interrupted
         started.append(k)
-        return L.Trainer(
+        return quiet_trainer(
             max_steps=5,
-            accelerator="cpu",
-            logger=False,
-            enable_checkpointing=False,
-            enable_progress_bar=False,
-            enable_model_summary=False,
             default_root_dir=run_dir,
             callbacks=list(callbacks),
         )
@@ -185,13 +181,8 @@ def test_a_stream_needs_a_rollout_evaluation(tiny_umaze, tmp_path):
     L.seed_everything(SEED, verbose=False)
 
     def make_trainer(k):
-        return L.Trainer(
+        return quiet_trainer(
             max_steps=2,
-            accelerator="cpu",
-            logger=False,
-            enable_checkpointing=False,
-            enable_progress_bar=False,
-            enable_model_summary=False,
             default_root_dir=tmp_path,
         )
 
