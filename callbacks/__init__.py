@@ -1,6 +1,13 @@
 """Callbacks that carry out the method (shipped as ``hispo_pl.callbacks``)."""
 
+from .networks import TaskNetworks
 from .rollout import RolloutEvaluation
 from .subspace import AnchorExtension, DirichletEvaluation, SubspacePruning
 
-__all__ = ["AnchorExtension", "DirichletEvaluation", "RolloutEvaluation", "SubspacePruning"]
+__all__ = [
+    "AnchorExtension",
+    "DirichletEvaluation",
+    "RolloutEvaluation",
+    "SubspacePruning",
+    "TaskNetworks",
+]

@@ -6,6 +6,8 @@
 - ``hispo-pl data list``: the datasets stored locally.
 - ``hispo-pl evaluate --ckpt RUN/task_04.ckpt --task pointmaze-medium-IO [--json]``: roll out
   any checkpoint on any task.
+- ``hispo-pl benchmark --stream pointmaze-1 --methods all --seeds 3 --out results/pm1``: every
+  method × seed as ``fit`` subprocesses, then the tables (``hispo_pl.benchmark``).
 """
 
 from __future__ import annotations
@@ -95,7 +97,6 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
 
     from .loop import ContinualLoop
     from .metrics import module_bytes
-    from .modules.hbc import HBC
 
     config = cli.config[cli.subcommand]
     data_args = dict(config["data"])
@@ -113,12 +114,7 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
             callbacks=list(callbacks), enable_checkpointing=False, default_root_dir=run_dir
         )
 
-    hp = model.hparams
-    sizes = {k: hp[k] for k in ("obs_dim", "action_dim", "goal_dim") if k in hp}
-    # the reference is the single-task HBC of the same architecture (a fixed high log-std
-    # drops the high policy's log-std head, so it matters too)
-    widths = {k: hp[k] for k in ("high_hidden", "low_hidden", "dropout", "high_log_std") if k in hp}
-    reference = module_bytes(HBC(**sizes, **widths))
+    reference = module_bytes(model.reference_model())  # MEM's unit: one single-task model
     scratch = None
     if config.get("scratch_results"):
         R = json.loads(Path(config["scratch_results"]).read_text())["R"]
@@ -272,6 +268,10 @@ def main(argv: list[str] | None = None) -> int:
         return data_main(argv[1:])
     if argv and argv[0] == "evaluate":
         return evaluate_main(argv[1:])
+    if argv and argv[0] == "benchmark":
+        from .benchmark import main as benchmark_main
+
+        return benchmark_main(argv[1:])
     run_lightning_cli(argv)
     return 0
 

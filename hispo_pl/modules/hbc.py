@@ -6,7 +6,7 @@ from typing import Literal
 
 import lightning as L
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
 from ..nn.mlp import GaussianPolicy, feature_dim, gaussian_nll, goal_features
 
@@ -26,6 +26,10 @@ class GoalConditionedBC(L.LightningModule):
         self.log_prefix = ""  # e.g. "task_03/" inside a stream, so curves of tasks do not collide
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        raise NotImplementedError
+
+    def reference_model(self) -> nn.Module:
+        """One single-task model of this method's architecture: MEM's unit."""
         raise NotImplementedError
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
@@ -67,6 +71,8 @@ class GoalConditionedBC(L.LightningModule):
 
     def configure_optimizers(self):
         params = [p for p in self.parameters() if p.requires_grad]
+        if not params:  # a method that does not train on this task (FRZ after its first)
+            return None
         opt = torch.optim.Adam(params, lr=self.lr)
         steps = self.trainer.max_steps if self.trainer is not None else -1
         if self.lr_schedule == "constant" or steps is None or steps <= 0:
@@ -82,12 +88,13 @@ class GoalConditionedBC(L.LightningModule):
         raise NotImplementedError
 
 
-class HBC(GoalConditionedBC):
-    """Hierarchical goal-conditioned BC.
+class HierarchicalNet(nn.Module):
+    """The HBC networks: a high policy over subgoal offsets and a low policy over actions.
 
     The high policy sees [features(goal − pos), obs, pos, goal] and predicts a Gaussian over the
     subgoal offset (subgoal − pos); the low policy sees [features(subgoal − pos), obs] (never
     the absolute goal) and predicts a Gaussian over the action. Acting re-plans every step.
+    Kept apart from the LightningModule so that methods can hold several (one per task).
     """
 
     def __init__(
@@ -98,12 +105,9 @@ class HBC(GoalConditionedBC):
         high_hidden: int = 64,
         low_hidden: int = 256,
         dropout: float = 0.1,
-        lr: float = 3e-4,
-        lr_schedule: Literal["cosine", "constant"] = "cosine",
         high_log_std: float | None = None,
     ):
-        super().__init__(lr=lr, lr_schedule=lr_schedule)
-        self.save_hyperparameters()
+        super().__init__()
         f = feature_dim(goal_dim)
         self.high = GaussianPolicy(
             f + obs_dim + 2 * goal_dim, high_hidden, goal_dim, dropout, fixed_log_std=high_log_std
@@ -127,13 +131,105 @@ class HBC(GoalConditionedBC):
         loss_low = gaussian_nll(mean_l, log_std_l, batch["action"])
         return {"loss": loss_high + loss_low, "loss_high": loss_high, "loss_low": loss_low}
 
+    def act(self, observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
+        offset, _ = self.high(self.high_input(observation, position, goal))
+        action, _ = self.low(self.low_input(observation, offset))
+        return action
+
+
+class FlatNet(nn.Module):
+    """Flat goal-conditioned BC: the high policy's inputs, one Gaussian policy over actions."""
+
+    def __init__(
+        self, obs_dim: int, action_dim: int, goal_dim: int = 2, hidden: int = 256, dropout=0.1
+    ):
+        super().__init__()
+        self.policy = GaussianPolicy(
+            feature_dim(goal_dim) + obs_dim + 2 * goal_dim, hidden, action_dim, dropout
+        )
+
+    def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        x = HierarchicalNet.high_input(batch["observation"], batch["position"], batch["goal"])
+        mean, log_std = self.policy(x)
+        return {"loss": gaussian_nll(mean, log_std, batch["action"])}
+
+    def act(self, observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
+        action, _ = self.policy(HierarchicalNet.high_input(observation, position, goal))
+        return action
+
+
+Backbone = Literal["hbc", "bc"]
+
+
+def make_backbone(
+    backbone: Backbone,
+    obs_dim: int,
+    action_dim: int,
+    goal_dim: int = 2,
+    high_hidden: int = 64,
+    low_hidden: int = 256,
+    dropout: float = 0.1,
+    high_log_std: float | None = None,
+) -> HierarchicalNet | FlatNet:
+    """One single-task network: hierarchical (``hbc``) or flat (``bc``, the low width)."""
+    if backbone == "hbc":
+        return HierarchicalNet(
+            obs_dim, action_dim, goal_dim, high_hidden, low_hidden, dropout, high_log_std
+        )
+    if backbone == "bc":
+        return FlatNet(obs_dim, action_dim, goal_dim, low_hidden, dropout)
+    raise ValueError(f"unknown backbone {backbone!r}; expected 'hbc' or 'bc'")
+
+
+class HBC(GoalConditionedBC):
+    """Hierarchical goal-conditioned BC on one task (:class:`HierarchicalNet`).
+
+    ``high_log_std``: a fixed log-std makes the high policy's loss a squared error on the
+    subgoal; ``None`` learns it.
+    """
+
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int,
+        goal_dim: int = 2,
+        high_hidden: int = 64,
+        low_hidden: int = 256,
+        dropout: float = 0.1,
+        lr: float = 3e-4,
+        lr_schedule: Literal["cosine", "constant"] = "cosine",
+        high_log_std: float | None = None,
+    ):
+        super().__init__(lr=lr, lr_schedule=lr_schedule)
+        self.save_hyperparameters()
+        self.net = HierarchicalNet(
+            obs_dim, action_dim, goal_dim, high_hidden, low_hidden, dropout, high_log_std
+        )
+
+    def reference_model(self) -> nn.Module:
+        hp = self.hparams
+        return make_backbone(
+            "hbc",
+            hp.obs_dim,
+            hp.action_dim,
+            hp.goal_dim,
+            hp.high_hidden,
+            hp.low_hidden,
+            hp.dropout,
+            hp.high_log_std,
+        )
+
+    high_input = staticmethod(HierarchicalNet.high_input)
+    low_input = staticmethod(HierarchicalNet.low_input)
+
+    def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        return self.net.losses(batch)
+
     @torch.no_grad()
     def act(
         self, observation: Tensor, position: Tensor, goal: Tensor, task: int | None = None
     ) -> Tensor:
-        offset, _ = self.high(self.high_input(observation, position, goal))
-        action, _ = self.low(self.low_input(observation, offset))
-        return action
+        return self.net.act(observation, position, goal)
 
 
 class BC(GoalConditionedBC):
@@ -151,18 +247,17 @@ class BC(GoalConditionedBC):
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
-        self.policy = GaussianPolicy(
-            feature_dim(goal_dim) + obs_dim + 2 * goal_dim, hidden, action_dim, dropout
-        )
+        self.net = FlatNet(obs_dim, action_dim, goal_dim, hidden, dropout)
+
+    def reference_model(self) -> nn.Module:
+        hp = self.hparams
+        return FlatNet(hp.obs_dim, hp.action_dim, hp.goal_dim, hp.hidden, hp.dropout)
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        x = HBC.high_input(batch["observation"], batch["position"], batch["goal"])
-        mean, log_std = self.policy(x)
-        return {"loss": gaussian_nll(mean, log_std, batch["action"])}
+        return self.net.losses(batch)
 
     @torch.no_grad()
     def act(
         self, observation: Tensor, position: Tensor, goal: Tensor, task: int | None = None
     ) -> Tensor:
-        action, _ = self.policy(HBC.high_input(observation, position, goal))
-        return action
+        return self.net.act(observation, position, goal)

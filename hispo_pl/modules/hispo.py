@@ -17,7 +17,7 @@ from torch import Tensor, nn
 from ..nn import eval_mode
 from ..nn.mlp import GaussianPolicy, feature_dim, gaussian_nll
 from ..nn.subspace import AnchorInit, SubspaceResidualMLP, cosine_similarity_penalty
-from .hbc import HBC, GoalConditionedBC
+from .hbc import HBC, GoalConditionedBC, make_backbone
 
 SUBSPACES = ("high", "low")
 Precision = Literal["32", "bf16"]
@@ -228,6 +228,20 @@ class HiSPO(GoalConditionedBC):
             out["cosine"] = reg
             out["loss"] = out["loss"] + self.hparams.cosine_weight * reg
         return out
+
+    def reference_model(self) -> nn.Module:
+        """MEM's unit: the single-task HBC of the same widths (its fixed log-std included)."""
+        hp = self.hparams
+        return make_backbone(
+            "hbc",
+            hp.obs_dim,
+            hp.action_dim,
+            hp.goal_dim,
+            hp.high_hidden,
+            hp.low_hidden,
+            hp.dropout,
+            hp.high_log_std,
+        )
 
     def alpha_for(self, subspace: str, task: int | None) -> Tensor:
         """Weights to act with: a finished task's stored row, else the current scores."""

@@ -1,0 +1,59 @@
+"""Callbacks of the per-task-network baselines (SC1, SCN, FT1, FTN, FRZ, L2, EWC): make each
+task's network at task start, record which network a finished task acts with."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import lightning as L
+from typing_extensions import override
+
+from ..modules.columns import GrowingPolicy
+
+
+def _require_growing_policy(pl_module: L.LightningModule, who: str) -> GrowingPolicy:
+    if not isinstance(pl_module, GrowingPolicy):
+        raise TypeError(
+            f"{who} needs a module that makes a network per task (the GrowingPolicy protocol, "
+            f"e.g. hispo_pl.modules.NetworkPerTask), got {type(pl_module).__name__}"
+        )
+    return pl_module
+
+
+def trains_on(task: int, train: Literal["all", "first"]) -> bool:
+    """Whether a method trains on task ``task`` (0-based): FRZ trains on the first only."""
+    return train == "all" or task == 0
+
+
+class TaskNetworks(L.Callback):
+    """At task start (before the optimiser exists) the module makes the task's network; at
+    task end it records the network the task acts with.
+
+    Args:
+        train: ``all`` tasks, or only the ``first`` (FRZ: later tasks are not trained at all;
+            their fit ends before the first step and goes straight to the evaluation).
+    """
+
+    def __init__(self, train: Literal["all", "first"] = "all"):
+        if train not in ("all", "first"):
+            raise ValueError(f"train must be 'all' or 'first', got {train!r}")
+        self.train = train
+
+    @override
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        module = _require_growing_policy(pl_module, type(self).__name__)
+        if stage != "fit":
+            return
+        if trains_on(module.task_index, self.train):
+            module.start_task(module.task_index)
+        else:
+            module.freeze_all()
+
+    @override
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if not trains_on(pl_module.task_index, self.train):
+            trainer.should_stop = True  # no gradient step on this task
+
+    @override
+    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        pl_module.finish_task(pl_module.task_index)

@@ -1,0 +1,172 @@
+"""Plain networks per task: the scratch (SC1, SCN), fine-tuning (FT1, FTN) and frozen (FRZ)
+baselines, and the regularised fine-tuning ones (L2, EWC) built on them.
+
+One module covers the five simple methods through two choices made at each task start:
+where the task's network starts (``init``) and which networks are kept (``keep``):
+
+======  ============  ======  ================================================
+method  init          keep    acting on an earlier task
+======  ============  ======  ================================================
+SC1     ``fresh``     last    the newest network (trained on the last task)
+SCN     ``fresh``     all     that task's own network
+FT1     ``previous``  last    the newest network (fine-tuned through the stream)
+FTN     ``previous``  all     that task's own network (a fine-tuned copy)
+FRZ     ``previous``  last    the first network (``TaskNetworks(train="first")``)
+======  ============  ======  ================================================
+
+The module owns everything inference needs: the networks and the buffer mapping every
+finished task to the network it acts with, so a checkpoint alone acts on every task seen.
+Growth is carried out by the :class:`~hispo_pl.callbacks.TaskNetworks` callback through the
+:class:`GrowingPolicy` protocol.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Literal, Protocol, runtime_checkable
+
+import torch
+from torch import Tensor, nn
+
+from .hbc import Backbone, GoalConditionedBC, make_backbone
+
+Init = Literal["fresh", "previous"]
+Keep = Literal["all", "last"]
+
+
+@runtime_checkable
+class GrowingPolicy(Protocol):
+    """What :class:`~hispo_pl.callbacks.TaskNetworks` needs from a module."""
+
+    task_index: int
+
+    def start_task(self, task: int) -> None: ...
+    def finish_task(self, task: int) -> None: ...
+    def freeze_all(self) -> None: ...
+
+
+class NetworkPerTask(GoalConditionedBC):
+    """One backbone network per task, or one for the whole stream (see the module docstring).
+
+    Args:
+        obs_dim, action_dim, goal_dim: sizes (linked from the data by the CLI).
+        backbone: ``hbc`` (hierarchical) or ``bc`` (flat, the low width), for the BC-vs-HBC table.
+        init: a task's network starts ``fresh`` (scratch) or from the ``previous`` task's.
+        keep: ``all`` networks (one per task, each task acts with its own) or the ``last`` one.
+        high_hidden, low_hidden, dropout, high_log_std: the backbone (as :class:`HBC`).
+        lr, lr_schedule: Adam, restarted at every task.
+    """
+
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int,
+        goal_dim: int = 2,
+        backbone: Backbone = "hbc",
+        init: Init = "fresh",
+        keep: Keep = "all",
+        high_hidden: int = 64,
+        low_hidden: int = 256,
+        dropout: float = 0.1,
+        high_log_std: float | None = None,
+        lr: float = 3e-4,
+        lr_schedule: Literal["cosine", "constant"] = "cosine",
+    ):
+        super().__init__(lr=lr, lr_schedule=lr_schedule)
+        if init not in ("fresh", "previous"):
+            raise ValueError(f"init must be 'fresh' or 'previous', got {init!r}")
+        if keep not in ("all", "last"):
+            raise ValueError(f"keep must be 'all' or 'last', got {keep!r}")
+        self.save_hyperparameters()
+        self.nets = nn.ModuleList([self.new_network()])
+        # network index each finished task acts with (one entry per finished task)
+        self.register_buffer("task_network", torch.zeros(0, dtype=torch.long))
+        self._started: int | None = None
+
+    def new_network(self) -> nn.Module:
+        """A freshly initialised single-task network of this method's backbone."""
+        hp = self.hparams
+        return make_backbone(
+            hp.backbone,
+            hp.obs_dim,
+            hp.action_dim,
+            hp.goal_dim,
+            hp.high_hidden,
+            hp.low_hidden,
+            hp.dropout,
+            hp.high_log_std,
+        )
+
+    def reference_model(self) -> nn.Module:
+        return self.new_network()
+
+    # --- the GrowingPolicy protocol -------------------------------------------------------
+
+    def start_task(self, task: int) -> None:
+        """Make the network task ``task`` trains (before the optimiser is built); idempotent,
+        so a resumed run does not grow twice."""
+        if task == 0 or self._started == task or self.n_tasks > task:
+            self._started = task
+            return
+        previous = self.nets[-1]
+        new = copy.deepcopy(previous) if self.hparams.init == "previous" else self.new_network()
+        new.to(self.device)
+        self.freeze_all()  # earlier networks (all of them, also after a resume) stay as learned
+        if self.hparams.keep == "all":
+            self.nets.append(new)
+        else:
+            self.nets[0] = new
+        new.requires_grad_(True)
+        self._started = task
+
+    def finish_task(self, task: int) -> None:
+        """Record the network task ``task`` acts with from now on."""
+        index = len(self.nets) - 1
+        mapping = self.task_network
+        if task < len(mapping):
+            mapping = mapping.clone()
+            mapping[task] = index
+        elif task == len(mapping):
+            mapping = torch.cat([mapping, mapping.new_tensor([index])])
+        else:
+            raise ValueError(f"task {task} finished before tasks 0..{task - 1}")
+        self.task_network = mapping
+
+    def freeze_all(self) -> None:
+        for p in self.parameters():
+            p.requires_grad_(False)
+
+    @property
+    def n_tasks(self) -> int:
+        return len(self.task_network)
+
+    # --- training and acting --------------------------------------------------------------
+
+    def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        return self.nets[-1].losses(batch)
+
+    def network_for(self, task: int | None) -> nn.Module:
+        """A finished task's network; the newest one for the current or an unseen task."""
+        if task is not None and task < self.n_tasks:
+            return self.nets[int(self.task_network[task])]
+        return self.nets[-1]
+
+    @torch.no_grad()
+    def act(
+        self, observation: Tensor, position: Tensor, goal: Tensor, task: int | None = None
+    ) -> Tensor:
+        task = self.task_index if task is None else task
+        return self.network_for(task).act(observation, position, goal)
+
+    # --- checkpoints ----------------------------------------------------------------------
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        super().on_load_checkpoint(checkpoint)
+        self.restore_structure(checkpoint["state_dict"])
+
+    def restore_structure(self, state_dict: dict[str, Tensor]) -> None:
+        """As many networks and mapped tasks as the state dict holds, before it loads."""
+        indices = {int(k.split(".")[1]) for k in state_dict if k.startswith("nets.")}
+        while len(self.nets) < len(indices):
+            self.nets.append(self.new_network())
+        self.task_network = torch.zeros_like(state_dict["task_network"])
