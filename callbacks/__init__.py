@@ -1,6 +1,6 @@
 """Callbacks that carry out the method (shipped as ``hispo_pl.callbacks``)."""
 
-from .networks import TaskNetworks
+from .networks import TaskNetworks, WeightConsolidation
 from .rollout import RolloutEvaluation
 from .subspace import AnchorExtension, DirichletEvaluation, SubspacePruning
 
@@ -10,4 +10,5 @@ __all__ = [
     "RolloutEvaluation",
     "SubspacePruning",
     "TaskNetworks",
+    "WeightConsolidation",
 ]

@@ -1,5 +1,6 @@
 """Callbacks of the per-task-network baselines (SC1, SCN, FT1, FTN, FRZ, L2, EWC): make each
-task's network at task start, record which network a finished task acts with."""
+task's network at task start, record which network a finished task acts with, and fold a
+finished task's weights into the L2 / EWC penalty."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import lightning as L
 from typing_extensions import override
 
 from ..modules.columns import GrowingPolicy
+from ..modules.regularized import ConsolidatingPolicy
 
 
 def _require_growing_policy(pl_module: L.LightningModule, who: str) -> GrowingPolicy:
@@ -57,3 +59,37 @@ class TaskNetworks(L.Callback):
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         pl_module.finish_task(pl_module.task_index)
+
+
+class WeightConsolidation(L.Callback):
+    """At a task's end, the module folds the task's weights into its penalty (L2, EWC); EWC's
+    empirical Fisher is measured on ``fisher_batches`` fresh batches of the task.
+
+    Args:
+        fisher_batches: batches of the finished task the Fisher is averaged over (EWC only).
+        batch_size: samples per batch (per-sample gradients are taken in chunks of 256).
+        seed: seeds those batches.
+    """
+
+    def __init__(self, fisher_batches: int = 16, batch_size: int = 256, seed: int = 0):
+        if fisher_batches < 1:
+            raise ValueError(f"fisher_batches must be >= 1, got {fisher_batches}")
+        self.fisher_batches, self.batch_size, self.seed = fisher_batches, batch_size, seed
+
+    @override
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        if not isinstance(pl_module, ConsolidatingPolicy):
+            raise TypeError(
+                f"{type(self).__name__} needs a module with a weight penalty (the "
+                "ConsolidatingPolicy protocol, e.g. hispo_pl.modules.RegularizedFineTuning), got "
+                f"{type(pl_module).__name__}"
+            )
+
+    @override
+    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        batches = []
+        if pl_module.needs_fisher:
+            batches = trainer.datamodule.fixed_batches(
+                self.fisher_batches, self.seed, self.batch_size, pl_module.device
+            )
+        pl_module.consolidate(batches)

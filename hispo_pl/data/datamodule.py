@@ -98,6 +98,14 @@ class TaskDataModule(L.LightningDataModule):
         if self.data is None:
             self.data = load_episodes(self.dataset or self.task).for_task(self.task)
 
+    def fixed_batches(
+        self, n: int, seed: int, batch_size: int | None = None, device: torch.device | None = None
+    ) -> list[dict[str, torch.Tensor]]:
+        """``n`` HER batches of the current task from their own seeded sampler (independent of
+        the training stream): what task-end callbacks score candidates or measure a Fisher on."""
+        sampler = HERSampler(self.data, self.her, batch_size or self.batch_size, seed=seed)
+        return [{k: v.to(device) for k, v in sampler.sample().items()} for _ in range(n)]
+
     def train_dataloader(self) -> DataLoader:
         sampler = HERSampler(self.data, self.her, self.batch_size, seed=self.seed)
         return DataLoader(_Batches(sampler, self.steps_per_epoch), batch_size=None, num_workers=0)

@@ -3,13 +3,16 @@
 from .columns import GrowingPolicy, NetworkPerTask
 from .hbc import BC, HBC, GoalConditionedBC
 from .hispo import HiSPO, SubspacePolicy
+from .regularized import ConsolidatingPolicy, RegularizedFineTuning
 
 __all__ = [
     "BC",
-    "HBC",
+    "ConsolidatingPolicy",
     "GoalConditionedBC",
     "GrowingPolicy",
+    "HBC",
     "HiSPO",
     "NetworkPerTask",
+    "RegularizedFineTuning",
     "SubspacePolicy",
 ]

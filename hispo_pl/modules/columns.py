@@ -78,6 +78,8 @@ class NetworkPerTask(GoalConditionedBC):
         if keep not in ("all", "last"):
             raise ValueError(f"keep must be 'all' or 'last', got {keep!r}")
         self.save_hyperparameters()
+        # attributes, not hparams: subclasses that fix them do not take them as arguments
+        self.network_init, self.network_keep = init, keep
         self.nets = nn.ModuleList([self.new_network()])
         # network index each finished task acts with (one entry per finished task)
         self.register_buffer("task_network", torch.zeros(0, dtype=torch.long))
@@ -109,10 +111,10 @@ class NetworkPerTask(GoalConditionedBC):
             self._started = task
             return
         previous = self.nets[-1]
-        new = copy.deepcopy(previous) if self.hparams.init == "previous" else self.new_network()
+        new = copy.deepcopy(previous) if self.network_init == "previous" else self.new_network()
         new.to(self.device)
         self.freeze_all()  # earlier networks (all of them, also after a resume) stay as learned
-        if self.hparams.keep == "all":
+        if self.network_keep == "all":
             self.nets.append(new)
         else:
             self.nets[0] = new
