@@ -175,3 +175,46 @@ def test_flat_bc_version_runs_on_the_same_loop(tiny_umaze, tmp_path):
     module = GoalConditionedBC.from_checkpoint_file(str(run_dir / "task_02.ckpt"))
     assert all(isinstance(net, FlatNet) for net in module.nets) and len(module.nets) == 2
     assert results["MEM"] == pytest.approx(2, rel=1e-3) and results["BWT"] == 0.0
+
+
+# --- replay (RPL) ----------------------------------------------------------------------------
+
+
+def test_split_evenly_and_mixed_batches(tiny_umaze):
+    from hispo_pl.data.sampler import HERConfig, HERSampler, MixedSampler, split_evenly
+
+    assert split_evenly(10, 3) == [4, 3, 3] and sum(split_evenly(1024, 3)) == 1024
+    her = HERConfig(waysteps=5, temperature=10.0)
+    first, second = HERSampler(tiny_umaze, her, seed=0), HERSampler(tiny_umaze, her, seed=1)
+    batch = MixedSampler([first, second], batch_size=7).sample()
+    assert all(len(v) == 7 for v in batch.values())
+    # the first share is exactly what the first sampler draws alone with the same seed
+    alone = HERSampler(tiny_umaze, her, seed=0).sample(4)
+    assert torch.equal(batch["observation"][:4], alone["observation"])
+
+
+def test_replay_datamodule_draws_from_every_earlier_task(tiny_umaze):
+    from hispo_pl.data.datamodule import TaskDataModule
+
+    stream = [
+        "pointmaze-umaze-PA[3]",
+        "pointmaze-umaze-N[3]",
+        "pointmaze-umaze-PO[3]",
+        "pointmaze-umaze-N[3]",
+    ]
+    dm = TaskDataModule(task="pointmaze-umaze-N[3]", stream=stream, replay=True, batch_size=8)
+    assert [t.spec for t in dm.earlier_tasks()] == ["pointmaze-umaze-PA[3]"]
+    dm = TaskDataModule(task="pointmaze-umaze-PO[3]", stream=stream, replay=True, batch_size=9)
+    dm.setup("fit")
+    assert [t.spec for t in dm.earlier_tasks()] == ["pointmaze-umaze-PA[3]", "pointmaze-umaze-N[3]"]
+    batch = next(iter(dm.train_dataloader()))
+    assert len(batch["action"]) == 9
+    assert len(dm.replayed) == 2
+    assert dm.fixed_batches(1, seed=0)[0]["action"].shape == (9, 2)  # current task only
+    with pytest.raises(ValueError, match="not in the stream"):
+        TaskDataModule(task="pointmaze-umaze-IA[3]", stream=stream, replay=True).earlier_tasks()
+
+
+def test_replay_stream_end_to_end(tiny_umaze, tmp_path):
+    results = _fit("rpl", tmp_path)
+    assert len(results["R"]) == 2 and results["MEM"] == pytest.approx(1, rel=1e-3)

@@ -9,7 +9,7 @@ import torch
 from torch.utils.data import DataLoader, IterableDataset
 
 from .datasets import EpisodeArrays, load_episodes
-from .sampler import HERConfig, HERSampler, Horizon, Strategy
+from .sampler import HERConfig, HERSampler, Horizon, MixedSampler, Strategy
 from .tasks import Task, parse_stream, parse_task
 
 
@@ -45,6 +45,10 @@ class TaskDataModule(L.LightningDataModule):
         stream: a stream name (``pointmaze-1``) or list of task specs: ``hispo-pl fit`` then
             trains the whole stream with the ContinualLoop (``task`` is ignored), and the
             evaluation at each task's end covers every task of the stream.
+        replay: also train on every earlier task of the stream, each batch split in equal
+            shares over the tasks seen so far (the RPL baseline: an upper bound that keeps old
+            data, which the continual setting forbids). Task-end callbacks still draw their
+            batches from the current task only.
     """
 
     def __init__(
@@ -59,6 +63,7 @@ class TaskDataModule(L.LightningDataModule):
         steps_per_epoch: int = 1000,
         seed: int = 0,
         stream: str | list[str] | None = None,
+        replay: bool = False,
     ):
         super().__init__()
         self.stream: list[str] | None = (
@@ -67,17 +72,32 @@ class TaskDataModule(L.LightningDataModule):
         self.task: Task = parse_task(task)
         self.dataset = dataset
         self.batch_size = batch_size
-        self.her = HERConfig(
-            waysteps=waysteps if waysteps is not None else self.task.defaults.waysteps,
-            temperature=her_temperature
-            if her_temperature is not None
-            else self.task.defaults.her_temperature,
-            strategy=her_strategy,
-            goal_horizon=goal_horizon,
-        )
+        self._her_options = (waysteps, her_temperature, her_strategy, goal_horizon)
+        self.her = self.her_config(self.task)
         self.steps_per_epoch = steps_per_epoch
         self.seed = seed
+        self.replay = replay
         self.data: EpisodeArrays | None = None
+        self.replayed: list[tuple[EpisodeArrays, HERConfig]] = []
+
+    def her_config(self, task: Task) -> HERConfig:
+        """The relabelling of ``task``: the explicit options, else the paper's per-maze values."""
+        waysteps, temperature, strategy, horizon = self._her_options
+        return HERConfig(
+            waysteps=waysteps if waysteps is not None else task.defaults.waysteps,
+            temperature=temperature if temperature is not None else task.defaults.her_temperature,
+            strategy=strategy,
+            goal_horizon=horizon,
+        )
+
+    def earlier_tasks(self) -> list[Task]:
+        """Distinct tasks of the stream before the current one (its first occurrence)."""
+        if self.stream is None:
+            return []
+        if self.task.spec not in self.stream:
+            raise ValueError(f"task {self.task.spec} is not in the stream {self.stream}")
+        specs = self.stream[: self.stream.index(self.task.spec)]
+        return [parse_task(s) for s in dict.fromkeys(specs) if s != self.task.spec]
 
     @property
     def obs_dim(self) -> int:
@@ -97,6 +117,11 @@ class TaskDataModule(L.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         if self.data is None:
             self.data = load_episodes(self.dataset or self.task).for_task(self.task)
+        if self.replay and not self.replayed:
+            self.replayed = [
+                (load_episodes(task).for_task(task), self.her_config(task))
+                for task in self.earlier_tasks()
+            ]
 
     def fixed_batches(
         self, n: int, seed: int, batch_size: int | None = None, device: torch.device | None = None
@@ -108,4 +133,10 @@ class TaskDataModule(L.LightningDataModule):
 
     def train_dataloader(self) -> DataLoader:
         sampler = HERSampler(self.data, self.her, self.batch_size, seed=self.seed)
+        if self.replayed:
+            earlier = [
+                HERSampler(data, her, seed=self.seed + 1 + k)
+                for k, (data, her) in enumerate(self.replayed)
+            ]
+            sampler = MixedSampler([sampler, *earlier], self.batch_size)
         return DataLoader(_Batches(sampler, self.steps_per_epoch), batch_size=None, num_workers=0)

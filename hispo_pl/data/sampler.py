@@ -98,3 +98,25 @@ class HERSampler:
             "subgoal": self._pos[subgoal],
             "action": self._act[i],
         }
+
+
+def split_evenly(total: int, parts: int) -> list[int]:
+    """``total`` samples in ``parts`` shares that differ by at most one (earlier shares larger)."""
+    if parts < 1:
+        raise ValueError(f"need at least one share, got {parts}")
+    base, extra = divmod(total, parts)
+    return [base + (k < extra) for k in range(parts)]
+
+
+class MixedSampler:
+    """Batches made of equal shares from several samplers (replay of earlier tasks' data)."""
+
+    def __init__(self, samplers: list[HERSampler], batch_size: int = 1024):
+        if not samplers:
+            raise ValueError("MixedSampler needs at least one sampler")
+        self.samplers, self.batch_size = samplers, batch_size
+
+    def sample(self, batch_size: int | None = None) -> dict[str, torch.Tensor]:
+        shares = split_evenly(batch_size or self.batch_size, len(self.samplers))
+        parts = [s.sample(n) for s, n in zip(self.samplers, shares, strict=True) if n]
+        return {k: torch.cat([part[k] for part in parts]) for k in parts[0]}
