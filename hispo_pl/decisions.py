@@ -30,3 +30,20 @@ def previous_subspace_candidates(
         return torch.tensor([[1.0, 0.0]])
     draws = sample_dirichlet(n, n_anchors - 1, generator)
     return torch.cat([draws, torch.zeros(n, 1)], dim=1)
+
+
+def pac_rate(distances: Tensor, eps: float) -> float:
+    """Empirical ``P[d(a, â) <= eps]``: the fraction of samples predicted within ``eps``."""
+    if distances.numel() == 0:
+        raise ValueError("the PAC criterion needs at least one sample")
+    if eps < 0:
+        raise ValueError(f"eps must be non-negative, got {eps}")
+    return int((distances <= eps).sum()) / distances.numel()
+
+
+def zero_shot(distances: Tensor, eps: float, delta: float) -> bool:
+    """The paper's PAC criterion: the previous subspace's best policy needs no new anchor when
+    ``P[d(a, â) <= eps] >= 1 - delta`` on the new task's data."""
+    if not 0.0 <= delta <= 1.0:
+        raise ValueError(f"delta must be in [0, 1], got {delta}")
+    return pac_rate(distances, eps) >= 1.0 - delta

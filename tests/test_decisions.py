@@ -82,3 +82,18 @@ def test_candidates_are_deterministic_given_a_seeded_generator():
     c = previous_subspace_candidates(64, 4, torch.Generator().manual_seed(8))
     assert torch.equal(a, b)
     assert not torch.equal(a, c)
+
+
+def test_pac_rate_and_zero_shot_rule():
+    from hispo_pl.decisions import pac_rate, zero_shot
+
+    d = torch.tensor([0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9])
+    assert pac_rate(d, 0.45) == pytest.approx(0.5)
+    assert pac_rate(d, 0.9) == 1.0  # within eps, bound included
+    assert zero_shot(d, 0.85, delta=0.1)  # 9 of 10 within: 0.9 >= 1 - 0.1
+    assert not zero_shot(d, 0.75, delta=0.1)  # 8 of 10
+    assert zero_shot(d, 0.0, delta=1.0)  # delta 1 accepts anything
+    with pytest.raises(ValueError, match="delta"):
+        zero_shot(d, 0.1, delta=1.5)
+    with pytest.raises(ValueError, match="at least one"):
+        pac_rate(torch.zeros(0), 0.1)
