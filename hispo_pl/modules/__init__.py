@@ -3,6 +3,7 @@
 from .columns import GrowingPolicy, NetworkPerTask
 from .hbc import BC, HBC, GoalConditionedBC
 from .hispo import HiSPO, SubspacePolicy
+from .pnn import PNN
 from .regularized import ConsolidatingPolicy, RegularizedFineTuning
 
 __all__ = [
@@ -13,6 +14,7 @@ __all__ = [
     "HBC",
     "HiSPO",
     "NetworkPerTask",
+    "PNN",
     "RegularizedFineTuning",
     "SubspacePolicy",
 ]

@@ -1,0 +1,174 @@
+"""PNN (Progressive Neural Networks) on the HBC backbone: a new column per task for each of
+the two policies (high and low), lateral adapters from every earlier column at every layer,
+only the newest column (and its laterals) trainable.
+
+The module owns everything inference needs: the columns and laterals of both policies and the
+buffer mapping every finished task to the column it acts with, so a checkpoint alone acts on
+every task seen. Task ``j`` acts with column ``j`` (reading the frozen columns ``< j`` through
+its laterals); the current or an unseen task acts with the newest column. Later columns never
+feed earlier ones, so a finished task's actions stay bit-identical (BWT = 0). Growth is carried
+out by the :class:`~hispo_pl.callbacks.TaskNetworks` callback through the
+:class:`~hispo_pl.modules.columns.GrowingPolicy` protocol. See :mod:`hispo_pl.nn.progressive`
+for the lateral design (linear, bias-free, zero-initialised).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import torch
+from torch import Tensor, nn
+
+from ..nn.mlp import feature_dim, gaussian_nll
+from ..nn.progressive import ProgressivePolicy
+from .hbc import GoalConditionedBC, HierarchicalNet, make_backbone
+
+POLICIES = ("high", "low")
+
+
+class PNN(GoalConditionedBC):
+    """Progressive columns for the high and the low policy of the HBC backbone.
+
+    Args:
+        obs_dim, action_dim, goal_dim: sizes (linked from the data by the CLI).
+        high_hidden, low_hidden, dropout, high_log_std: each column's widths, as :class:`HBC`.
+        lr, lr_schedule: Adam over the newest column and its laterals, restarted at every task.
+
+    Example:
+        >>> m = PNN(4, 2, high_hidden=8, low_hidden=16)
+        >>> for k in range(3):
+        ...     m.start_task(k)
+        ...     m.finish_task(k)
+        >>> m.n_columns, m.task_column.tolist()
+        (3, [0, 1, 2])
+    """
+
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int,
+        goal_dim: int = 2,
+        high_hidden: int = 64,
+        low_hidden: int = 256,
+        dropout: float = 0.1,
+        high_log_std: float | None = None,
+        lr: float = 3e-4,
+        lr_schedule: Literal["cosine", "constant"] = "cosine",
+    ):
+        super().__init__(lr=lr, lr_schedule=lr_schedule)
+        self.save_hyperparameters()
+        f = feature_dim(goal_dim)
+        self.high = ProgressivePolicy(
+            f + obs_dim + 2 * goal_dim, high_hidden, goal_dim, dropout, fixed_log_std=high_log_std
+        )
+        self.low = ProgressivePolicy(f + obs_dim, low_hidden, action_dim, dropout)
+        # column each finished task acts with (one entry per finished task)
+        self.register_buffer("task_column", torch.zeros(0, dtype=torch.long))
+
+    def reference_model(self) -> nn.Module:
+        """MEM's unit: the single-task HBC of the same widths (one column of each policy)."""
+        hp = self.hparams
+        return make_backbone(
+            "hbc",
+            hp.obs_dim,
+            hp.action_dim,
+            hp.goal_dim,
+            hp.high_hidden,
+            hp.low_hidden,
+            hp.dropout,
+            hp.high_log_std,
+        )
+
+    @property
+    def n_columns(self) -> int:
+        return self.high.net.n_columns
+
+    @property
+    def n_tasks(self) -> int:
+        return len(self.task_column)
+
+    def _policies(self) -> tuple[ProgressivePolicy, ProgressivePolicy]:
+        return self.high, self.low
+
+    # --- the GrowingPolicy protocol -------------------------------------------------------
+
+    def start_task(self, task: int) -> None:
+        """Make column ``task`` the one that trains (before the optimiser is built): add it
+        when it does not exist yet, freeze every other. Idempotent (a second setup of the same
+        task does not grow again), and right after a resume from a checkpoint."""
+        if task > self.n_columns:
+            raise ValueError(
+                f"task {task} started with {self.n_columns} columns (tasks 0..{self.n_columns - 1})"
+                "; PNN needs its tasks in stream order"
+            )
+        if task < self.n_columns - 1:
+            raise ValueError(
+                f"task {task} already has a frozen column (newest: {self.n_columns - 1}); PNN "
+                "trains only its newest column, so earlier tasks cannot be trained again"
+            )
+        if task == self.n_columns:
+            for policy in self._policies():
+                policy.net.add_column()
+        self.freeze_all()  # every earlier column and lateral, also after a resume
+        for policy in self._policies():
+            for p in policy.net.column_parameters(task):
+                p.requires_grad_(True)
+
+    def finish_task(self, task: int) -> None:
+        """Record the column task ``task`` acts with from now on (the newest)."""
+        index = self.n_columns - 1
+        mapping = self.task_column
+        if task < len(mapping):
+            mapping = mapping.clone()
+            mapping[task] = index
+        elif task == len(mapping):
+            mapping = torch.cat([mapping, mapping.new_tensor([index])])
+        else:
+            raise ValueError(f"task {task} finished before tasks 0..{task - 1}")
+        self.task_column = mapping
+
+    def freeze_all(self) -> None:
+        for p in self.parameters():
+            p.requires_grad_(False)
+
+    # --- training and acting --------------------------------------------------------------
+
+    def column_for(self, task: int | None) -> int:
+        """A finished task's column; the newest one for the current or an unseen task."""
+        if task is not None and task < self.n_tasks:
+            return int(self.task_column[task])
+        return self.n_columns - 1
+
+    def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        """The HBC losses of the newest column (the earlier ones run without gradients)."""
+        obs, pos = batch["observation"], batch["position"]
+        offset = batch["subgoal"] - pos
+        mean_h, log_std_h = self.high(HierarchicalNet.high_input(obs, pos, batch["goal"]))
+        mean_l, log_std_l = self.low(HierarchicalNet.low_input(obs, offset))
+        loss_high = gaussian_nll(mean_h, log_std_h, offset)
+        loss_low = gaussian_nll(mean_l, log_std_l, batch["action"])
+        return {"loss": loss_high + loss_low, "loss_high": loss_high, "loss_low": loss_low}
+
+    @torch.no_grad()
+    def act(
+        self, observation: Tensor, position: Tensor, goal: Tensor, task: int | None = None
+    ) -> Tensor:
+        column = self.column_for(self.task_index if task is None else task)
+        offset, _ = self.high(HierarchicalNet.high_input(observation, position, goal), column)
+        action, _ = self.low(HierarchicalNet.low_input(observation, offset), column)
+        return action
+
+    # --- checkpoints ----------------------------------------------------------------------
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        super().on_load_checkpoint(checkpoint)
+        self.restore_structure(checkpoint["state_dict"])
+
+    def restore_structure(self, state_dict: dict[str, Tensor]) -> None:
+        """As many columns and mapped tasks as the state dict holds, before it loads."""
+        prefix = "high.net.columns."
+        columns = {int(k[len(prefix) :].split(".")[0]) for k in state_dict if k.startswith(prefix)}
+        while self.n_columns < len(columns):
+            for policy in self._policies():
+                policy.net.add_column()
+        self.task_column = torch.zeros_like(state_dict["task_column"])
