@@ -207,10 +207,16 @@ class SubspacePruning(L.Callback):
     Args:
         eps_high: tolerance of the high subspace.
         eps_low: tolerance of the low subspace.
+        eps: tolerances by subspace name, for modules whose subspaces are named otherwise
+            (CSPO's single ``policy``: ``{"policy": 0.1}``); its entries override
+            ``eps_high`` / ``eps_low``. A subspace named nowhere gets the largest tolerance
+            given (0.1 with the defaults).
     """
 
-    def __init__(self, eps_high: float = 0.1, eps_low: float = 0.1):
-        self.eps = {"high": eps_high, "low": eps_low}
+    def __init__(
+        self, eps_high: float = 0.1, eps_low: float = 0.1, eps: dict[str, float] | None = None
+    ):
+        self.eps = {"high": eps_high, "low": eps_low, **(eps or {})}
         self._search: DirichletEvaluation | None = None
 
     @override

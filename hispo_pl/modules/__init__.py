@@ -1,17 +1,21 @@
 """LightningModules: the backbones and the continual methods built on them."""
 
 from .columns import GrowingPolicy, NetworkPerTask
+from .cspo import CSPO
 from .hbc import BC, HBC, GoalConditionedBC
+from .hilow import HiLOW
 from .hispo import HiSPO, SubspacePolicy
 from .pnn import PNN
 from .regularized import ConsolidatingPolicy, RegularizedFineTuning
 
 __all__ = [
     "BC",
+    "CSPO",
     "ConsolidatingPolicy",
     "GoalConditionedBC",
     "GrowingPolicy",
     "HBC",
+    "HiLOW",
     "HiSPO",
     "NetworkPerTask",
     "PNN",

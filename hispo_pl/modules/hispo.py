@@ -8,7 +8,8 @@ pruning are decided by callbacks through the :class:`SubspacePolicy` protocol.
 
 from __future__ import annotations
 
-from typing import Literal, Protocol, runtime_checkable
+from contextlib import ExitStack
+from typing import ClassVar, Literal, Protocol, runtime_checkable
 
 import torch
 import torch.nn.functional as F
@@ -64,7 +65,8 @@ class HiSPO(GoalConditionedBC):
         high_hidden, low_hidden: widths of the high and low policies.
         dropout: dropout of every hidden layer.
         lr, lr_schedule: Adam learning rate and schedule (restarted each task).
-        anchor_init: a new anchor starts as the ``mean`` of the others, or ``random``.
+        anchor_init: a new anchor starts as the ``mean`` of the others, ``random``, or a
+            copy of the ``first``.
         cosine_weight: weight λ of the anchors' squared-cosine regulariser (0: off).
         alpha_noise: std of the noise on the scores while training (0.1 in the paper).
         alpha_groups: anchor weights drawn per step: the batch is split into this many
@@ -74,9 +76,14 @@ class HiSPO(GoalConditionedBC):
             steps/s against 0.62× with 16 groups (``benchmarks/hispo_speed.py``).
         high_log_std: as in :class:`HBC`: a fixed log-std makes the high policy's loss a
             squared error on the subgoal; ``None`` learns it.
+
+    Which policies a subspace holds is the class attribute ``subspace_policies`` (here each
+    policy its own subspace; :class:`~hispo_pl.modules.cspo.CSPO` puts both in one): the
+    policies of one subspace grow, get pruned and are mixed together, with one weight vector.
     """
 
-    subspace_names = SUBSPACES
+    subspace_policies: ClassVar[dict[str, tuple[str, ...]]] = {n: (n,) for n in SUBSPACES}
+    subspace_names: ClassVar[tuple[str, ...]] = SUBSPACES  # the keys of subspace_policies
 
     def __init__(
         self,
@@ -109,14 +116,25 @@ class HiSPO(GoalConditionedBC):
                 "low": SubspaceGaussianPolicy(f + obs_dim, low_hidden, action_dim, dropout),
             }
         )
-        self.scores = nn.ParameterDict({name: nn.Parameter(torch.zeros(1)) for name in SUBSPACES})
-        for name in SUBSPACES:  # one row of anchor weights per finished task
+        if tuple(self.subspace_policies) != self.subspace_names:
+            raise TypeError(f"{type(self).__name__}: subspace_names must list subspace_policies")
+        names = self.subspace_names
+        self.scores = nn.ParameterDict({name: nn.Parameter(torch.zeros(1)) for name in names})
+        for name in names:  # one row of anchor weights per finished task
             self.register_buffer(f"task_alpha_{name}", torch.zeros(0, 1))
+
+    def _nets(self, subspace: str) -> list[nn.Module]:
+        """The subspace networks of the policies a subspace holds (they grow together)."""
+        return [self.policies[p].net for p in self.subspace_policies[subspace]]
+
+    def subspace_of(self, policy: str) -> str:
+        """The subspace whose weights the policy ``policy`` (high or low) is mixed with."""
+        return next(s for s, held in self.subspace_policies.items() if policy in held)
 
     # --- the SubspacePolicy protocol ----------------------------------------------------
 
     def n_anchors(self, subspace: str) -> int:
-        return self.policies[subspace].net.n_anchors
+        return self._nets(subspace)[0].n_anchors
 
     def task_alphas(self, subspace: str) -> Tensor:
         return getattr(self, f"task_alpha_{subspace}")
@@ -127,14 +145,16 @@ class HiSPO(GoalConditionedBC):
     def add_anchor(self, subspace: str) -> None:
         """Grow a subspace by one trainable anchor (older ones frozen), reset its scores and
         give every stored task a zero weight on the new anchor."""
-        self.policies[subspace].net.add_anchor(self.hparams.anchor_init)
+        for net in self._nets(subspace):
+            net.add_anchor(self.hparams.anchor_init)
         k = self.n_anchors(subspace)
         self.scores[subspace] = nn.Parameter(torch.zeros(k, device=self.scores[subspace].device))
         self._set_task_alphas(subspace, F.pad(self.task_alphas(subspace), (0, 1)))
 
     def prune_last_anchor(self, subspace: str) -> None:
         """Drop the newest anchor of a subspace; stored weights lose their last coordinate."""
-        self.policies[subspace].net.remove_last_anchor()
+        for net in self._nets(subspace):
+            net.remove_last_anchor()
         k = self.n_anchors(subspace)
         self.scores[subspace] = nn.Parameter(torch.zeros(k, device=self.scores[subspace].device))
         self._set_task_alphas(subspace, self.task_alphas(subspace)[:, :k].contiguous())
@@ -180,51 +200,67 @@ class HiSPO(GoalConditionedBC):
         one batched forward per chunk of candidates, deterministic predictions (eval mode,
         whatever the module's mode; the mode is restored afterwards). ``precision="bf16"``
         runs the forwards in bfloat16 autocast (several times faster where the CPU has
-        bf16 units); the losses are reduced in float32."""
-        x, target = self._io(subspace, batch)
+        bf16 units); the losses are reduced in float32. A subspace holding several policies
+        scores the sum of their losses (each policy on its own inputs and targets)."""
+        names = self.subspace_policies[subspace]
+        io = {name: self._io(name, batch) for name in names}
         out = []
-        autocast = torch.autocast(x.device.type, torch.bfloat16, enabled=precision == "bf16")
+        device = next(iter(io.values()))[0].device
+        autocast = torch.autocast(device.type, torch.bfloat16, enabled=precision == "bf16")
         # dropout off: every candidate is scored on the same, deterministic predictions
-        with eval_mode(self.policies[subspace]) as policy:
+        with ExitStack() as stack:
+            policies = {name: stack.enter_context(eval_mode(self.policies[name])) for name in names}
             for part in alphas.split(chunk):
-                with autocast:
-                    mean, log_std = policy(x, part)  # [M, B, d]
-                mean, log_std = mean.float(), log_std.float()
-                if loss == "mse":
-                    out.append((mean - target).pow(2).sum(-1).mean(-1))
-                else:
-                    z = (target - mean) * torch.exp(-log_std)
-                    out.append((0.5 * z.pow(2) + log_std).sum(-1).mean(-1))
+                total = None
+                for name, policy in policies.items():
+                    x, target = io[name]
+                    with autocast:
+                        mean, log_std = policy(x, part)  # [M, B, d]
+                    mean, log_std = mean.float(), log_std.float()
+                    if loss == "mse":
+                        part_loss = (mean - target).pow(2).sum(-1).mean(-1)
+                    else:
+                        z = (target - mean) * torch.exp(-log_std)
+                        part_loss = (0.5 * z.pow(2) + log_std).sum(-1).mean(-1)
+                    total = part_loss if total is None else total + part_loss
+                out.append(total)
         return torch.cat(out)
 
     # --- training and acting --------------------------------------------------------------
 
-    def _io(self, subspace: str, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
+    def _io(self, policy: str, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
+        """Inputs and targets of the ``high`` or ``low`` policy (the true subgoal feeds low)."""
         obs, pos = batch["observation"], batch["position"]
         offset = batch["subgoal"] - pos
-        if subspace == "high":
+        if policy == "high":
             return HBC.high_input(obs, pos, batch["goal"]), offset
         return HBC.low_input(obs, offset), batch["action"]
 
-    def _grouped_forward(self, subspace: str, x: Tensor) -> tuple[Tensor, Tensor]:
-        groups = min(self.hparams.alpha_groups, x.shape[0])
-        while x.shape[0] % groups:
+    def _training_alphas(self, subspace: str, batch_size: int) -> Tensor:
+        """One step's anchor weights of a subspace, one row per group of the batch."""
+        groups = min(self.hparams.alpha_groups, batch_size)
+        while batch_size % groups:
             groups -= 1
-        alphas = training_alphas(self.scores[subspace], groups, self.hparams.alpha_noise)
+        return training_alphas(self.scores[subspace], groups, self.hparams.alpha_noise)
+
+    def _grouped_forward(self, policy: str, x: Tensor, alphas: Tensor) -> tuple[Tensor, Tensor]:
+        groups = alphas.shape[0]
         if groups == 1:  # one weight vector: the plain (unbatched) forward, no bmm
-            return self.policies[subspace](x, alphas[0])
-        mean, log_std = self.policies[subspace](x.reshape(groups, -1, x.shape[-1]), alphas)
+            return self.policies[policy](x, alphas[0])
+        mean, log_std = self.policies[policy](x.reshape(groups, -1, x.shape[-1]), alphas)
         return mean.reshape(x.shape[0], -1), log_std.reshape(x.shape[0], -1)
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         out = {}
-        for name in SUBSPACES:
-            x, target = self._io(name, batch)
-            mean, log_std = self._grouped_forward(name, x)
-            out[f"loss_{name}"] = gaussian_nll(mean, log_std, target)
+        for subspace, names in self.subspace_policies.items():
+            alphas = self._training_alphas(subspace, len(batch["action"]))  # shared by names
+            for name in names:
+                x, target = self._io(name, batch)
+                mean, log_std = self._grouped_forward(name, x, alphas)
+                out[f"loss_{name}"] = gaussian_nll(mean, log_std, target)
         out["loss"] = out["loss_high"] + out["loss_low"]
         if self.hparams.cosine_weight > 0:
-            reg = sum(cosine_similarity_penalty(self.policies[n]) for n in SUBSPACES)
+            reg = sum(cosine_similarity_penalty(policy) for policy in self.policies.values())
             out["cosine"] = reg
             out["loss"] = out["loss"] + self.hparams.cosine_weight * reg
         return out
@@ -256,16 +292,17 @@ class HiSPO(GoalConditionedBC):
     ) -> Tensor:
         task = self.task_index if task is None else task
         offset, _ = self.policies["high"](
-            HBC.high_input(observation, position, goal), self.alpha_for("high", task)
+            HBC.high_input(observation, position, goal),
+            self.alpha_for(self.subspace_of("high"), task),
         )
         action, _ = self.policies["low"](
-            HBC.low_input(observation, offset), self.alpha_for("low", task)
+            HBC.low_input(observation, offset), self.alpha_for(self.subspace_of("low"), task)
         )
         return action
 
     @property
     def n_tasks(self) -> int:
-        return self.task_alphas("high").shape[0]
+        return self.task_alphas(self.subspace_names[0]).shape[0]
 
     # --- checkpoints ----------------------------------------------------------------------
 
@@ -275,9 +312,10 @@ class HiSPO(GoalConditionedBC):
 
     def restore_structure(self, state_dict: dict[str, Tensor]) -> None:
         """Resize anchors, scores and stored weights to a state dict's, before it loads."""
-        for name in SUBSPACES:
+        for name in self.subspace_names:
             rows = state_dict[f"task_alpha_{name}"]
             k = state_dict[f"scores.{name}"].shape[0]
-            self.policies[name].net.set_n_anchors(k)
+            for net in self._nets(name):
+                net.set_n_anchors(k)
             self.scores[name] = nn.Parameter(torch.zeros(k))
             self._set_task_alphas(name, torch.zeros_like(rows))
