@@ -2,7 +2,7 @@
 
 from .networks import TaskNetworks, WeightConsolidation
 from .rollout import RolloutEvaluation
-from .subspace import AnchorExtension, DirichletEvaluation, SubspacePruning
+from .subspace import AnchorExtension, DirichletEvaluation, SubspacePruning, ZeroShotTransfer
 
 __all__ = [
     "AnchorExtension",
@@ -11,4 +11,5 @@ __all__ = [
     "SubspacePruning",
     "TaskNetworks",
     "WeightConsolidation",
+    "ZeroShotTransfer",
 ]

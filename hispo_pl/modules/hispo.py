@@ -38,6 +38,11 @@ class SubspacePolicy(Protocol):
     def current_alpha(self, subspace: str) -> Tensor: ...
     def score_alphas(self, subspace: str, alphas: Tensor, batch: dict[str, Tensor]) -> Tensor: ...
     def set_task_alpha(self, task: int, subspace: str, alpha: Tensor) -> None: ...
+    def transfer(self, subspace: str, alpha: Tensor) -> None: ...
+    def transferred(self, subspace: str) -> bool: ...
+    def prediction_distances(
+        self, subspace: str, alpha: Tensor, batch: dict[str, Tensor]
+    ) -> dict[str, Tensor]: ...
 
 
 class SubspaceGaussianPolicy(GaussianPolicy):
@@ -122,6 +127,8 @@ class HiSPO(GoalConditionedBC):
         self.scores = nn.ParameterDict({name: nn.Parameter(torch.zeros(1)) for name in names})
         for name in names:  # one row of anchor weights per finished task
             self.register_buffer(f"task_alpha_{name}", torch.zeros(0, 1))
+        # task -> subspaces transferred zero-shot (decided at the task's start, so not stored)
+        self._transferred: dict[int, set[str]] = {}
 
     def _nets(self, subspace: str) -> list[nn.Module]:
         """The subspace networks of the policies a subspace holds (they grow together)."""
@@ -253,12 +260,14 @@ class HiSPO(GoalConditionedBC):
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         out = {}
         for subspace, names in self.subspace_policies.items():
+            if self.transferred(subspace):  # zero-shot: its weights are fixed, nothing to train
+                continue
             alphas = self._training_alphas(subspace, len(batch["action"]))  # shared by names
             for name in names:
                 x, target = self._io(name, batch)
                 mean, log_std = self._grouped_forward(name, x, alphas)
                 out[f"loss_{name}"] = gaussian_nll(mean, log_std, target)
-        out["loss"] = out["loss_high"] + out["loss_low"]
+        out["loss"] = sum(out[f"loss_{name}"] for name in self.policies if f"loss_{name}" in out)
         if self.hparams.cosine_weight > 0:
             reg = sum(cosine_similarity_penalty(policy) for policy in self.policies.values())
             out["cosine"] = reg
@@ -278,6 +287,31 @@ class HiSPO(GoalConditionedBC):
             hp.dropout,
             hp.high_log_std,
         )
+
+    def transfer(self, subspace: str, alpha: Tensor) -> None:
+        """Zero-shot transfer: the current task acts with ``alpha`` over the existing anchors
+        of ``subspace``, which is then neither extended nor trained on this task."""
+        self.set_task_alpha(self.task_index, subspace, alpha)
+        self._transferred.setdefault(self.task_index, set()).add(subspace)
+
+    def transferred(self, subspace: str) -> bool:
+        """Whether :meth:`transfer` fixed the current task's weights of ``subspace``."""
+        return subspace in self._transferred.get(self.task_index, ())
+
+    @torch.no_grad()
+    def prediction_distances(
+        self, subspace: str, alpha: Tensor, batch: dict[str, Tensor]
+    ) -> dict[str, Tensor]:
+        """Per-sample Euclidean distance between each policy's deterministic prediction with
+        weights ``alpha`` and the data (subgoal offset for ``high``, action for ``low``), for
+        the policies ``subspace`` holds: the d(a, â) of the PAC criterion."""
+        out = {}
+        for name in self.subspace_policies[subspace]:
+            x, target = self._io(name, batch)
+            with eval_mode(self.policies[name]) as policy:
+                mean, _ = policy(x, alpha)
+            out[name] = (mean - target).norm(dim=-1)
+        return out
 
     def alpha_for(self, subspace: str, task: int | None) -> Tensor:
         """Weights to act with: a finished task's stored row, else the current scores."""
