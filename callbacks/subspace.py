@@ -16,7 +16,6 @@ import torch
 from lightning.pytorch.loggers import TensorBoardLogger
 from typing_extensions import override
 
-from ..data.sampler import HERSampler
 from ..decisions import keep_previous, pac_rate, previous_subspace_candidates, zero_shot
 from ..modules.hispo import SubspacePolicy
 from ..nn import eval_mode
@@ -134,12 +133,8 @@ class DirichletEvaluation(L.Callback):
 
     @torch.no_grad()
     def _run_search(self, trainer: L.Trainer, module, save: bool = True) -> dict[str, SearchResult]:
-        dm = trainer.datamodule
-        sampler = HERSampler(dm.data, dm.her, dm.batch_size, seed=self.seed)
         device = module.device
-        batches = [
-            {k: v.to(device) for k, v in sampler.sample().items()} for _ in range(self.n_batches)
-        ]
+        batches = trainer.datamodule.fixed_batches(self.n_batches, self.seed, device=device)
         probe = {k: v[: self.probe_samples] for k, v in batches[0].items()}
         precision = resolve_precision(self.precision, device)
         generator = torch.Generator().manual_seed(self.seed)
