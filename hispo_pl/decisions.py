@@ -32,6 +32,20 @@ def previous_subspace_candidates(
     return torch.cat([draws, torch.zeros(n, 1)], dim=1)
 
 
+def extended_subspace_candidates(
+    n: int, trained: Tensor, generator: torch.Generator | None = None
+) -> Tensor:
+    """Candidate weights over every anchor of a grown subspace, to refine the trained weights:
+    the trained weights first, then the newest anchor alone, then ``n`` Dirichlet(1) draws;
+    shape [n + 2, K]. Training mixes the new anchor at weight ~1/K at first and the scores move
+    slowly, so on short budgets points nearer the new anchor often fit the task better."""
+    k = trained.shape[-1]
+    vertex = torch.zeros(1, k, device=trained.device)
+    vertex[0, -1] = 1.0
+    draws = sample_dirichlet(n, k, generator).to(trained.device)
+    return torch.cat([trained.reshape(1, k), vertex, draws])
+
+
 def pac_rate(distances: Tensor, eps: float) -> float:
     """Empirical ``P[d(a, â) <= eps]``: the fraction of samples predicted within ``eps``."""
     if distances.numel() == 0:

@@ -97,3 +97,14 @@ def test_pac_rate_and_zero_shot_rule():
         zero_shot(d, 0.1, delta=1.5)
     with pytest.raises(ValueError, match="at least one"):
         pac_rate(torch.zeros(0), 0.1)
+
+
+def test_extended_subspace_candidates_start_with_the_trained_weights_and_the_new_anchor():
+    from hispo_pl.decisions import extended_subspace_candidates
+
+    trained = torch.tensor([0.3, 0.3, 0.4])
+    cands = extended_subspace_candidates(50, trained, torch.Generator().manual_seed(0))
+    assert cands.shape == (52, 3)
+    assert torch.equal(cands[0], trained) and cands[1].tolist() == [0.0, 0.0, 1.0]
+    assert torch.allclose(cands.sum(1), torch.ones(52)) and (cands >= 0).all()
+    assert (cands[2:, -1] > 0).all()  # the draws use every anchor, the new one included
