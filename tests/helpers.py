@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import lightning as L
 
 
@@ -15,3 +18,49 @@ def quiet_trainer(max_steps: int, **kwargs) -> L.Trainer:
         "enable_model_summary": False,
     }
     return L.Trainer(max_steps=max_steps, **{**options, **kwargs})
+
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY_STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"]
+
+
+def tiny_stream_args(
+    method_config: str | Path, save_dir: Path, stream: list[str] = TINY_STREAM, *extra: str
+) -> list[str]:
+    """``hispo-pl fit`` arguments for a stream of tiny tasks (the ``tiny_umaze`` data): 5 steps
+    of batch 64 per task, 2 evaluation episodes, logs under ``save_dir``. ``method_config`` is
+    a method name of ``configs/methods`` or a path to a YAML file."""
+    config = Path(method_config)
+    if not config.suffix:
+        config = ROOT / "configs" / "methods" / f"{method_config}.yaml"
+    return [
+        "fit",
+        "--config",
+        str(ROOT / "configs/streams/pointmaze-1.yaml"),
+        "--config",
+        str(config),
+        "--data.stream",
+        json.dumps(stream),
+        "--trainer.max_steps",
+        "5",
+        "--data.batch_size",
+        "64",
+        "--trainer.logger.init_args.save_dir",
+        str(save_dir),
+        "--trainer.callbacks.init_args.episodes",  # the last callback: RolloutEvaluation
+        "2",
+        "--trainer.enable_progress_bar",
+        "false",
+        *extra,
+    ]
+
+
+def fit_tiny_stream(
+    method_config: str | Path, save_dir: Path, stream: list[str] = TINY_STREAM, *extra: str
+) -> tuple[dict, Path]:
+    """Run :func:`tiny_stream_args` through ``hispo-pl fit``; its results and run dir."""
+    from hispo_pl.cli import main
+
+    assert main(tiny_stream_args(method_config, save_dir, stream, *extra)) == 0
+    run_dir = save_dir / "pointmaze-1" / "seed0"  # a stream's version defaults to seed<seed>
+    return json.loads((run_dir / "results.json").read_text()), run_dir

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import pytest
 import torch
+from helpers import fit_tiny_stream
 
 from hispo_pl.callbacks.networks import trains_on
-from hispo_pl.cli import main
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules import GoalConditionedBC, NetworkPerTask
 from hispo_pl.modules.hbc import FlatNet, HierarchicalNet
@@ -123,27 +122,7 @@ def test_reference_model_is_one_backbone_network():
 
 
 def _fit(method: str, save_dir: Path) -> dict:
-    args = [
-        "fit",
-        "--config",
-        str(ROOT / "configs/streams/pointmaze-1.yaml"),
-        "--config",
-        str(ROOT / f"configs/methods/{method}.yaml"),
-        "--data.stream",
-        json.dumps(STREAM),
-        "--trainer.max_steps",
-        "5",
-        "--data.batch_size",
-        "64",
-        "--trainer.logger.init_args.save_dir",
-        str(save_dir),
-        "--trainer.callbacks.init_args.episodes",  # the last callback: RolloutEvaluation
-        "2",
-        "--trainer.enable_progress_bar",
-        "false",
-    ]
-    assert main(args) == 0
-    return json.loads((save_dir / "pointmaze-1" / "seed0" / "results.json").read_text())
+    return fit_tiny_stream(method, save_dir)[0]
 
 
 # MEM after two tasks: the networks kept, in units of one network

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
+from helpers import tiny_stream_args
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from hispo_pl.cli import main
@@ -19,27 +20,8 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _stream_args(save_dir: Path) -> list[str]:
-    return [
-        "fit",
-        "--config",
-        str(ROOT / "configs/streams/pointmaze-1.yaml"),
-        "--config",
-        str(ROOT / "configs/methods/hispo.yaml"),
-        "--data.stream",
-        json.dumps(STREAM),
-        "--trainer.max_steps",
-        "5",
-        "--data.batch_size",
-        "64",
-        "--trainer.logger.init_args.save_dir",
-        str(save_dir),
-        "--trainer.callbacks.init_args.episodes",  # the last callback: RolloutEvaluation
-        "2",
-        "--trainer.log_every_n_steps",
-        "1",
-        "--trainer.enable_progress_bar",
-        "false",
-    ]
+    extra = ("--trainer.log_every_n_steps", "1")
+    return tiny_stream_args("hispo", save_dir, STREAM, *extra)
 
 
 def test_stream_fit_prints_metrics_logs_and_resumes(tiny_umaze, tmp_path, capsys):

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from helpers import quiet_trainer
+from helpers import quiet_trainer, tiny_stream_args
 from torch.utils.data import DataLoader
 
 import hispo_pl.modules.hispo as hispo_mod
@@ -306,26 +306,7 @@ SUBSPACES_OF = {"cspo": ["policy"], "hilow": ["high", "low"]}
 
 @pytest.mark.parametrize("method", ["cspo", "hilow"])
 def test_a_stream_end_to_end_through_the_cli(method, tiny_umaze, tmp_path, capsys):
-    args = [
-        "fit",
-        "--config",
-        str(ROOT / "configs/streams/pointmaze-1.yaml"),
-        "--config",
-        str(ROOT / f"configs/methods/{method}.yaml"),
-        "--data.stream",
-        json.dumps(STREAM),
-        "--trainer.max_steps",
-        "5",
-        "--data.batch_size",
-        "64",
-        "--trainer.logger.init_args.save_dir",
-        str(tmp_path),
-        "--trainer.callbacks.init_args.episodes",  # the last callback: RolloutEvaluation
-        "2",
-        "--trainer.enable_progress_bar",
-        "false",
-    ]
-    assert main(args) == 0
+    assert main(tiny_stream_args(method, tmp_path, STREAM)) == 0
     out = capsys.readouterr().out
     run_dir = tmp_path / "pointmaze-1" / "seed0"
     results = json.loads((run_dir / "results.json").read_text())

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import lightning as L
 import pytest
 import torch
+from helpers import fit_tiny_stream
 
-from hispo_pl.cli import main
 from hispo_pl.loop import load_module_state
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules import GoalConditionedBC, GrowingPolicy
@@ -251,27 +250,7 @@ def test_resume_from_a_checkpoint_adds_one_column_and_freezes_the_rest(tmp_path)
 
 
 def _fit(method: str, save_dir: Path) -> dict:
-    args = [
-        "fit",
-        "--config",
-        str(ROOT / "configs/streams/pointmaze-1.yaml"),
-        "--config",
-        str(ROOT / f"configs/methods/{method}.yaml"),
-        "--data.stream",
-        json.dumps(STREAM),
-        "--trainer.max_steps",
-        "5",
-        "--data.batch_size",
-        "64",
-        "--trainer.logger.init_args.save_dir",
-        str(save_dir),
-        "--trainer.callbacks.init_args.episodes",  # the last callback: RolloutEvaluation
-        "2",
-        "--trainer.enable_progress_bar",
-        "false",
-    ]
-    assert main(args) == 0
-    return json.loads((save_dir / "pointmaze-1" / "seed0" / "results.json").read_text())
+    return fit_tiny_stream(method, save_dir)[0]
 
 
 def test_stream_end_to_end(tiny_umaze, tmp_path):

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import lightning as L
 import pytest
 import torch
+from helpers import fit_tiny_stream
 
-from hispo_pl.cli import main
 from hispo_pl.modules import GoalConditionedBC, RegularizedFineTuning
 from hispo_pl.modules.regularized import empirical_fisher, flat_parameters, merge_quadratics
 
@@ -111,30 +110,7 @@ def test_checkpoint_restores_the_penalty(tmp_path):
 
 @pytest.mark.parametrize("method,mem", [("l2", 2), ("ewc", 3)])
 def test_stream_end_to_end(method, mem, tiny_umaze, tmp_path):
-    args = [
-        "fit",
-        "--config",
-        str(ROOT / "configs/streams/pointmaze-1.yaml"),
-        "--config",
-        str(ROOT / f"configs/methods/{method}.yaml"),
-        "--data.stream",
-        json.dumps(STREAM),
-        "--trainer.max_steps",
-        "5",
-        "--data.batch_size",
-        "64",
-        "--trainer.logger.init_args.save_dir",
-        str(tmp_path),
-        "--trainer.callbacks.init_args.episodes",  # the last callback: RolloutEvaluation
-        "2",
-        "--trainer.log_every_n_steps",
-        "1",
-        "--trainer.enable_progress_bar",
-        "false",
-    ]
-    assert main(args) == 0
-    run_dir = tmp_path / "pointmaze-1" / "seed0"
-    results = json.loads((run_dir / "results.json").read_text())
+    results, run_dir = fit_tiny_stream(method, tmp_path, STREAM, "--trainer.log_every_n_steps", "1")
     # stored: the network plus the penalty's centre (and, for EWC, its importance vector)
     assert results["MEM"] == pytest.approx(mem, rel=1e-3)
     second = GoalConditionedBC.from_checkpoint_file(str(run_dir / "task_02.ckpt"))

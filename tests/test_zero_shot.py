@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
+from helpers import fit_tiny_stream
 
 from hispo_pl.callbacks import AnchorExtension, ZeroShotTransfer
-from hispo_pl.cli import main
 from hispo_pl.modules import GoalConditionedBC, HiSPO
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,28 +30,7 @@ def _method_config(tmp_path: Path, **transfer) -> Path:
 
 
 def _fit(tmp_path: Path, **transfer) -> tuple[dict, list[dict], Path]:
-    args = [
-        "fit",
-        "--config",
-        str(ROOT / "configs/streams/pointmaze-1.yaml"),
-        "--config",
-        str(_method_config(tmp_path, **transfer)),
-        "--data.stream",
-        json.dumps(STREAM),
-        "--trainer.max_steps",
-        "5",
-        "--data.batch_size",
-        "64",
-        "--trainer.logger.init_args.save_dir",
-        str(tmp_path),
-        "--trainer.callbacks.init_args.episodes",  # the last callback: RolloutEvaluation
-        "2",
-        "--trainer.enable_progress_bar",
-        "false",
-    ]
-    assert main(args) == 0
-    run_dir = tmp_path / "pointmaze-1" / "seed0"
-    results = json.loads((run_dir / "results.json").read_text())
+    results, run_dir = fit_tiny_stream(_method_config(tmp_path, **transfer), tmp_path, STREAM)
     decisions = [
         json.loads(line) for line in (run_dir / "decisions.jsonl").read_text().splitlines()
     ]

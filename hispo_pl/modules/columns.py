@@ -28,10 +28,23 @@ from typing import Literal, Protocol, runtime_checkable
 import torch
 from torch import Tensor, nn
 
-from .hbc import Backbone, GoalConditionedBC, make_backbone
+from .hbc import Backbone, GoalConditionedBC
 
 Init = Literal["fresh", "previous"]
 Keep = Literal["all", "last"]
+
+
+def record_task(mapping: Tensor, task: int, index: int) -> Tensor:
+    """``mapping`` (finished task → the network it acts with) with ``task`` set to ``index``;
+    tasks finish in order, so a new task is appended."""
+    if task < len(mapping):
+        mapping = mapping.clone()
+        mapping[task] = index
+    elif task == len(mapping):
+        mapping = torch.cat([mapping, mapping.new_tensor([index])])
+    else:
+        raise ValueError(f"task {task} finished before tasks 0..{task - 1}")
+    return mapping
 
 
 @runtime_checkable
@@ -86,21 +99,9 @@ class NetworkPerTask(GoalConditionedBC):
         self._started: int | None = None
 
     def new_network(self) -> nn.Module:
-        """A freshly initialised single-task network of this method's backbone."""
-        hp = self.hparams
-        return make_backbone(
-            hp.backbone,
-            hp.obs_dim,
-            hp.action_dim,
-            hp.goal_dim,
-            hp.high_hidden,
-            hp.low_hidden,
-            hp.dropout,
-            hp.high_log_std,
-        )
-
-    def reference_model(self) -> nn.Module:
-        return self.new_network()
+        """A freshly initialised single-task network of this method's backbone (as MEM's
+        unit, :meth:`reference_model`)."""
+        return self.reference_model()
 
     # --- the GrowingPolicy protocol -------------------------------------------------------
 
@@ -123,16 +124,7 @@ class NetworkPerTask(GoalConditionedBC):
 
     def finish_task(self, task: int) -> None:
         """Record the network task ``task`` acts with from now on."""
-        index = len(self.nets) - 1
-        mapping = self.task_network
-        if task < len(mapping):
-            mapping = mapping.clone()
-            mapping[task] = index
-        elif task == len(mapping):
-            mapping = torch.cat([mapping, mapping.new_tensor([index])])
-        else:
-            raise ValueError(f"task {task} finished before tasks 0..{task - 1}")
-        self.task_network = mapping
+        self.task_network = record_task(self.task_network, task, len(self.nets) - 1)
 
     def freeze_all(self) -> None:
         for p in self.parameters():

@@ -29,8 +29,20 @@ class GoalConditionedBC(L.LightningModule):
         raise NotImplementedError
 
     def reference_model(self) -> nn.Module:
-        """One single-task model of this method's architecture: MEM's unit."""
-        raise NotImplementedError
+        """One single-task model of this method's architecture: MEM's unit. By default the
+        backbone (``hbc`` unless a ``backbone`` hyperparameter says otherwise) built from the
+        module's own width hyperparameters."""
+        hp = self.hparams
+        return make_backbone(
+            hp.get("backbone", "hbc"),
+            hp.obs_dim,
+            hp.action_dim,
+            hp.goal_dim,
+            hp.get("high_hidden", 64),
+            hp.get("low_hidden", 256),
+            hp.get("dropout", 0.1),
+            hp.get("high_log_std"),
+        )
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         # enough to rebuild the module from the file alone (``hispo-pl evaluate``)
@@ -204,19 +216,6 @@ class HBC(GoalConditionedBC):
         self.save_hyperparameters()
         self.net = HierarchicalNet(
             obs_dim, action_dim, goal_dim, high_hidden, low_hidden, dropout, high_log_std
-        )
-
-    def reference_model(self) -> nn.Module:
-        hp = self.hparams
-        return make_backbone(
-            "hbc",
-            hp.obs_dim,
-            hp.action_dim,
-            hp.goal_dim,
-            hp.high_hidden,
-            hp.low_hidden,
-            hp.dropout,
-            hp.high_log_std,
         )
 
     high_input = staticmethod(HierarchicalNet.high_input)

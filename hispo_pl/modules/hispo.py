@@ -18,7 +18,7 @@ from torch import Tensor, nn
 from ..nn import eval_mode
 from ..nn.mlp import GaussianPolicy, feature_dim, gaussian_nll
 from ..nn.subspace import AnchorInit, SubspaceResidualMLP, cosine_similarity_penalty
-from .hbc import HBC, GoalConditionedBC, make_backbone
+from .hbc import HBC, GoalConditionedBC
 
 SUBSPACES = ("high", "low")
 Precision = Literal["32", "bf16"]
@@ -273,20 +273,6 @@ class HiSPO(GoalConditionedBC):
             out["cosine"] = reg
             out["loss"] = out["loss"] + self.hparams.cosine_weight * reg
         return out
-
-    def reference_model(self) -> nn.Module:
-        """MEM's unit: the single-task HBC of the same widths (its fixed log-std included)."""
-        hp = self.hparams
-        return make_backbone(
-            "hbc",
-            hp.obs_dim,
-            hp.action_dim,
-            hp.goal_dim,
-            hp.high_hidden,
-            hp.low_hidden,
-            hp.dropout,
-            hp.high_log_std,
-        )
 
     def transfer(self, subspace: str, alpha: Tensor) -> None:
         """Zero-shot transfer: the current task acts with ``alpha`` over the existing anchors

@@ -17,11 +17,12 @@ from __future__ import annotations
 from typing import Literal
 
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 
 from ..nn.mlp import feature_dim, gaussian_nll
 from ..nn.progressive import ProgressivePolicy
-from .hbc import GoalConditionedBC, HierarchicalNet, make_backbone
+from .columns import record_task
+from .hbc import GoalConditionedBC, HierarchicalNet
 
 POLICIES = ("high", "low")
 
@@ -65,20 +66,6 @@ class PNN(GoalConditionedBC):
         # column each finished task acts with (one entry per finished task)
         self.register_buffer("task_column", torch.zeros(0, dtype=torch.long))
 
-    def reference_model(self) -> nn.Module:
-        """MEM's unit: the single-task HBC of the same widths (one column of each policy)."""
-        hp = self.hparams
-        return make_backbone(
-            "hbc",
-            hp.obs_dim,
-            hp.action_dim,
-            hp.goal_dim,
-            hp.high_hidden,
-            hp.low_hidden,
-            hp.dropout,
-            hp.high_log_std,
-        )
-
     @property
     def n_columns(self) -> int:
         return self.high.net.n_columns
@@ -116,16 +103,7 @@ class PNN(GoalConditionedBC):
 
     def finish_task(self, task: int) -> None:
         """Record the column task ``task`` acts with from now on (the newest)."""
-        index = self.n_columns - 1
-        mapping = self.task_column
-        if task < len(mapping):
-            mapping = mapping.clone()
-            mapping[task] = index
-        elif task == len(mapping):
-            mapping = torch.cat([mapping, mapping.new_tensor([index])])
-        else:
-            raise ValueError(f"task {task} finished before tasks 0..{task - 1}")
-        self.task_column = mapping
+        self.task_column = record_task(self.task_column, task, self.n_columns - 1)
 
     def freeze_all(self) -> None:
         for p in self.parameters():
