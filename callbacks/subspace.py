@@ -298,6 +298,8 @@ def log_decisions(trainer: L.Trainer, module, decisions: list[dict]) -> None:
             metrics[f"search/{d['subspace']}/L_prev"] = d["l_prev"]
         if d.get("l_curr") is not None:
             metrics[f"search/{d['subspace']}/L_curr"] = d["l_curr"]
+        if d.get("l_trained") is not None:  # refine_current replaced the trained weights
+            metrics[f"search/{d['subspace']}/L_trained"] = d["l_trained"]
         for policy, rate in d.get("pac_rate", {}).items():
             metrics[f"zero_shot/{d['subspace']}/pac_rate_{policy}"] = rate
     logger.log_metrics(metrics, step=task)
