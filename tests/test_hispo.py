@@ -475,3 +475,23 @@ def test_load_into_a_larger_module_shrinks_it(tmp_path):
     assert (big.n_anchors("high"), big.n_anchors("low")) == (3, 2)
     for task in (0, 1, 2):
         assert torch.equal(_act(big, task), _act(m, task))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_anchors_added_later_leave_a_finished_task_bit_identical(seed):
+    """A finished task's weights get a 0 for every later anchor; its actions must not change by
+    a single bit (BWT exactly 0). Mixing the zero-weighted anchors too changes the rounding of
+    the sum (7e-7 here), enough to flip a rollout of a 600-step episode."""
+    torch.manual_seed(seed)
+    m = HiSPO(4, 2, high_log_std=0.0).eval()  # the method config's widths
+    for name in SUBSPACES:
+        m.set_task_alpha(0, name, torch.ones(1))
+        m.add_anchor(name)
+        m.set_task_alpha(1, name, torch.softmax(torch.randn(2), 0))
+    g = torch.Generator().manual_seed(0)
+    obs, pos, goal = (torch.randn(1000, d, generator=g) for d in (4, 2, 2))
+    before = m.act(obs, pos, goal, task=1)
+    for _ in range(2):  # two later tasks
+        for name in SUBSPACES:
+            m.add_anchor(name)
+    assert torch.equal(m.act(obs, pos, goal, task=1), before)

@@ -82,6 +82,16 @@ class SubspaceLayer(nn.Module):
     def n_anchors(self) -> int:
         return len(self._lists()[0])
 
+    def _used(self, alpha: Tensor) -> int:
+        """Anchors one stored weight vector mixes: up to its last non-zero weight. Anchors
+        added after a task get weight 0 in its row; leaving them out of the sum keeps that
+        task's parameters bit-identical (a zero-weighted term still changes how the reduction
+        rounds), so BWT stays exactly 0. Trained weights (requiring grad) mix every anchor."""
+        if alpha.requires_grad:
+            return alpha.shape[-1]
+        nonzero = torch.nonzero(alpha)
+        return int(nonzero.max()) + 1 if len(nonzero) else alpha.shape[-1]
+
     def anchor_vectors(self) -> Tensor:
         """All of each anchor's parameters flattened into one row: [K, D]."""
         rows = [
@@ -164,10 +174,12 @@ class SubspaceLinear(SubspaceLayer):
         """alpha [K]: x [..., in] → [..., out]. alpha [M, K]: x [B, in] (shared by all M) or
         [M, ..., in] → [M, ..., out], one batched matmul for the M mixed weights."""
         _check_alpha(alpha, self.n_anchors)
-        weights, biases = torch.stack(list(self.weights)), torch.stack(list(self.biases))
         if alpha.dim() == 1:
-            weight = torch.einsum("k,koi->oi", alpha, weights)
-            return F.linear(x, weight, alpha @ biases)
+            k = self._used(alpha)
+            weights = torch.stack(list(self.weights)[:k])
+            bias = alpha[:k] @ torch.stack(list(self.biases)[:k])
+            return F.linear(x, torch.einsum("k,koi->oi", alpha[:k], weights), bias)
+        weights, biases = torch.stack(list(self.weights)), torch.stack(list(self.biases))
         weight_t = torch.einsum("mk,koi->mio", alpha, weights)  # [M, in, out]
         return _batched_affine(x, weight_t, alpha @ biases)
 
@@ -313,13 +325,17 @@ class LowRankSubspaceLinear(SubspaceLayer):
         """alpha [K]: x [..., in] → [..., out]. alpha [M, K]: x [B, in] (shared by all M) or
         [M, ..., in] → [M, ..., out], one batched matmul for the M mixed weights."""
         _check_alpha(alpha, self.n_anchors)
-        bias = alpha @ torch.stack(list(self.biases))
         if alpha.dim() == 1:
+            k = self._used(alpha)
+            alpha = alpha[:k]
+            bias = alpha @ torch.stack(list(self.biases)[:k])
             weight = alpha.sum() * self.weight
-            if self.n_anchors > 1:
-                a, b = self.factors()
+            if k > 1:
+                a = torch.cat(list(self.lora_a)[: k - 1], dim=1)
+                b = torch.cat(list(self.lora_b)[: k - 1], dim=0)
                 weight = torch.addmm(weight, a * alpha[1:].repeat_interleave(self.rank), b)
             return F.linear(x, weight, bias)
+        bias = alpha @ torch.stack(list(self.biases))
         # the K-1 offsets once, then one mix per row as SubspaceLinear does: W_1 weighs Σα
         offsets = [a @ b for a, b in zip(self.lora_a, self.lora_b, strict=True)]
         stacked = torch.stack([self.weight, *offsets])  # [K, out, in]
@@ -361,9 +377,12 @@ class SubspaceLayerNorm(SubspaceLayer):
         """alpha [K]: x [..., dim] → same shape. alpha [M, K]: x [B, dim] (shared by all M) or
         [M, ..., dim] → [M, ..., dim]."""
         _check_alpha(alpha, self.n_anchors)
-        gammas, betas = torch.stack(list(self.gammas)), torch.stack(list(self.betas))
         if alpha.dim() == 1:
-            return F.layer_norm(x, (self.dim,), alpha @ gammas, alpha @ betas, self.eps)
+            k = self._used(alpha)
+            gamma = alpha[:k] @ torch.stack(list(self.gammas)[:k])
+            beta = alpha[:k] @ torch.stack(list(self.betas)[:k])
+            return F.layer_norm(x, (self.dim,), gamma, beta, self.eps)
+        gammas, betas = torch.stack(list(self.gammas)), torch.stack(list(self.betas))
         m = alpha.shape[0]
         normed = F.layer_norm(x, (self.dim,), eps=self.eps)
         if x.dim() == 2:
