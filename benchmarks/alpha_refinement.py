@@ -23,7 +23,7 @@ from hispo_pl.decisions import extended_subspace_candidates
 from hispo_pl.evaluation import RolloutEvaluator, module_policy
 from hispo_pl.modules import GoalConditionedBC
 from hispo_pl.nn import eval_mode
-from hispo_pl.search import race_candidates
+from hispo_pl.search import race_subspace
 
 
 def main() -> None:
@@ -49,11 +49,7 @@ def main() -> None:
     with eval_mode(module):
         for name in module.subspace_names:
             cands = extended_subspace_candidates(1024, stored[name], generator)
-
-            def score(alphas, batch, name=name):
-                return module.score_alphas(name, alphas, batch)
-
-            searched[name] = cands[race_candidates(score, cands, batches, probe, 32).best]
+            searched[name] = cands[race_subspace(module, name, cands, batches, probe, 32).best]
     print(f"task {args.task}: {stream[k]} ({args.episodes} episodes)")
     for label, alphas in (("stored", stored), ("searched", searched), ("newest", newest)):
         for name, alpha in alphas.items():

@@ -22,7 +22,7 @@ from hispo_pl.decisions import pac_rate
 from hispo_pl.modules import GoalConditionedBC
 from hispo_pl.nn import eval_mode
 from hispo_pl.nn.subspace import sample_dirichlet
-from hispo_pl.search import race_candidates
+from hispo_pl.search import race_subspace
 
 
 def main() -> None:
@@ -46,11 +46,7 @@ def main() -> None:
         with eval_mode(module):
             for name in module.subspace_names:
                 cands = sample_dirichlet(1024, module.n_anchors(name), generator)
-
-                def score(alphas, batch, name=name, module=module):
-                    return module.score_alphas(name, alphas, batch)
-
-                best = cands[race_candidates(score, cands, batches, probe, 32).best]
+                best = cands[race_subspace(module, name, cands, batches, probe, 32).best]
                 per_policy = [module.prediction_distances(name, best, b) for b in batches]
                 for policy in per_policy[0]:
                     d = torch.cat([x[policy] for x in per_policy])

@@ -14,6 +14,7 @@ import lightning as L
 import numpy as np
 import torch
 from lightning.pytorch.loggers import TensorBoardLogger
+from torch import Tensor
 from typing_extensions import override
 
 from ..decisions import (
@@ -26,7 +27,7 @@ from ..decisions import (
 from ..modules.hispo import SubspacePolicy
 from ..nn import eval_mode
 from ..nn.subspace import sample_dirichlet
-from ..search import RaceOutcome, race_candidates, resolve_precision
+from ..search import RaceOutcome, race_subspace, resolve_precision
 
 
 def _require_subspace_policy(pl_module: L.LightningModule, who: str) -> SubspacePolicy:
@@ -63,6 +64,13 @@ class SearchResult:
     l_prev: float | None = None
     alpha_prev: list[float] | None = None
     l_trained: float | None = None  # the trained weights' loss, when refine_current moved them
+
+
+def _refine(result: SearchResult, candidates: Tensor, race: RaceOutcome) -> None:
+    """The best of the grown subspace replaces the trained weights if its loss is lower."""
+    if race.best_loss < result.l_curr:
+        result.l_trained = result.l_curr
+        result.l_curr, result.alpha_curr = race.best_loss, candidates[race.best].tolist()
 
 
 class DirichletEvaluation(L.Callback):
@@ -158,33 +166,31 @@ class DirichletEvaluation(L.Callback):
                 if module.transferred(name):  # zero-shot: nothing was trained to compare
                     continue
 
-                def score(alphas, batch, name=name):
-                    return module.score_alphas(
-                        name, alphas, batch, loss=self.loss, precision=precision
+                def race(cands, probe=probe, name=name):
+                    return race_subspace(
+                        module, name, cands, batches, probe, self.survivors, self.loss, precision
                     )
 
                 alpha_curr = module.current_alpha(name).to(device)
-                l_curr = race_candidates(score, alpha_curr[None], batches).best_loss
+                l_curr = race(alpha_curr[None], probe=None).best_loss
                 result = SearchResult(l_curr, alpha_curr.tolist())
                 k = module.n_anchors(name)
                 if k > 1:
                     cands = previous_subspace_candidates(self.n_candidates, k, generator).to(device)
-                    race = race_candidates(score, cands, batches, probe, self.survivors)
-                    result.l_prev, result.alpha_prev = race.best_loss, cands[race.best].tolist()
+                    outcome = race(cands)
+                    result.l_prev, result.alpha_prev = (
+                        outcome.best_loss,
+                        cands[outcome.best].tolist(),
+                    )
                     if self.refine_current:
-                        self._refine(score, result, alpha_curr, batches, probe, generator)
+                        cands_curr = extended_subspace_candidates(
+                            self.n_candidates, alpha_curr, generator
+                        )
+                        _refine(result, cands_curr, race(cands_curr))
                     if save:
-                        self._save(trainer, module, name, cands, race, result)
+                        self._save(trainer, module, name, cands, outcome, result)
                 results[name] = result
         return results
-
-    def _refine(self, score, result: SearchResult, trained, batches, probe, generator) -> None:
-        """The best of the grown subspace replaces the trained weights if its loss is lower."""
-        cands = extended_subspace_candidates(self.n_candidates, trained, generator)
-        race = race_candidates(score, cands, batches, probe, self.survivors)
-        if race.best_loss < result.l_curr:
-            result.l_trained = result.l_curr
-            result.l_curr, result.alpha_curr = race.best_loss, cands[race.best].tolist()
 
     def _save(self, trainer, module, name, cands, race: RaceOutcome, result: SearchResult) -> None:
         out = Path(trainer.default_root_dir) / "search"
@@ -396,18 +402,17 @@ class ZeroShotTransfer(L.Callback):
                     continue
                 k = module.n_anchors(name)
                 cands = sample_dirichlet(self.n_candidates, k, generator).to(device)
-
-                def score(alphas, batch, name=name):
-                    return module.score_alphas(name, alphas, batch, precision=precision)
-
-                best = cands[race_candidates(score, cands, batches, probe, self.survivors).best]
+                race = race_subspace(
+                    module, name, cands, batches, probe, self.survivors, precision=precision
+                )
+                best = cands[race.best]
                 distances = [module.prediction_distances(name, best, b) for b in batches]
-                rates, accepted = {}, True
+                rates, eps, accepted = {}, {}, True
                 for policy in distances[0]:
                     d = torch.cat([dist[policy] for dist in distances])
-                    eps = self.eps.get(policy, max(self.eps.values()))
-                    rates[policy] = pac_rate(d, eps)
-                    accepted &= zero_shot(d, eps, self.delta)
+                    eps[policy] = self.eps.get(policy, max(self.eps.values()))
+                    rates[policy] = pac_rate(d, eps[policy])
+                    accepted &= zero_shot(d, eps[policy], self.delta)
                 if accepted:
                     module.transfer(name, best)
                 decisions.append(
@@ -416,7 +421,7 @@ class ZeroShotTransfer(L.Callback):
                         "subspace": name,
                         "decision": "zero-shot" if accepted else "train",
                         "pac_rate": rates,
-                        "eps": {p: self.eps.get(p, max(self.eps.values())) for p in rates},
+                        "eps": eps,
                         "delta": self.delta,
                         "anchors": k,
                         "alpha": best.tolist(),

@@ -78,3 +78,22 @@ def resolve_precision(precision: str, device: torch.device) -> Literal["32", "bf
         or getattr(cpu, "_is_amx_tile_supported", lambda: False)()
     )
     return "bf16" if native else "32"
+
+
+def race_subspace(
+    module,
+    subspace: str,
+    candidates: Tensor,
+    batches: Sequence[dict[str, Tensor]],
+    probe: dict[str, Tensor] | None = None,
+    survivors: int | None = None,
+    loss: Literal["mse", "nll"] = "mse",
+    precision: Literal["32", "bf16"] = "32",
+) -> RaceOutcome:
+    """:func:`race_candidates` over weight vectors of one subspace of ``module`` (a
+    :class:`~hispo_pl.modules.SubspacePolicy`), scored by its ``score_alphas``."""
+
+    def score(alphas: Tensor, batch: dict[str, Tensor]) -> Tensor:
+        return module.score_alphas(subspace, alphas, batch, loss=loss, precision=precision)
+
+    return race_candidates(score, candidates, batches, probe, survivors)

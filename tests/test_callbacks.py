@@ -331,7 +331,9 @@ def test_periodic_search_rejects_a_negative_period():
 
 def test_refine_current_takes_a_better_point_of_the_grown_subspace():
     """The trained weights are replaced only by a point with a lower loss on the same batches."""
-    from hispo_pl.callbacks.subspace import SearchResult
+    from hispo_pl.callbacks.subspace import SearchResult, _refine
+    from hispo_pl.decisions import extended_subspace_candidates
+    from hispo_pl.search import race_candidates
 
     target = torch.tensor([0.0, 0.0, 1.0])  # the loss is lowest at the new anchor alone
 
@@ -340,15 +342,19 @@ def test_refine_current_takes_a_better_point_of_the_grown_subspace():
 
     batches = [{"offset": torch.tensor(0.5)}] * 3
     trained = torch.tensor([0.3, 0.3, 0.4])
-    search = DirichletEvaluation(n_candidates=64, survivors=8)
+
+    def refine(result, trained):
+        cands = extended_subspace_candidates(64, trained, torch.Generator().manual_seed(0))
+        _refine(result, cands, race_candidates(score, cands, batches, batches[0], survivors=8))
+
     result = SearchResult(
         l_curr=float(score(trained[None], batches[0])[0]), alpha_curr=trained.tolist()
     )
-    search._refine(score, result, trained, batches, batches[0], torch.Generator().manual_seed(0))
+    refine(result, trained)
     assert result.alpha_curr == [0.0, 0.0, 1.0] and result.l_curr == pytest.approx(0.5)
     assert result.l_trained == pytest.approx(0.5 + 0.3**2 + 0.3**2 + 0.6**2)
 
     # trained weights already at the optimum: kept, and no l_trained recorded
     kept = SearchResult(l_curr=0.5, alpha_curr=target.tolist())
-    search._refine(score, kept, target, batches, batches[0], torch.Generator().manual_seed(0))
+    refine(kept, target)
     assert kept.alpha_curr == target.tolist() and kept.l_trained is None

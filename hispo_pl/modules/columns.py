@@ -126,10 +126,6 @@ class NetworkPerTask(GoalConditionedBC):
         """Record the network task ``task`` acts with from now on."""
         self.task_network = record_task(self.task_network, task, len(self.nets) - 1)
 
-    def freeze_all(self) -> None:
-        for p in self.parameters():
-            p.requires_grad_(False)
-
     @property
     def n_tasks(self) -> int:
         return len(self.task_network)
@@ -153,10 +149,6 @@ class NetworkPerTask(GoalConditionedBC):
         return self.network_for(task).act(observation, position, goal)
 
     # --- checkpoints ----------------------------------------------------------------------
-
-    def on_load_checkpoint(self, checkpoint: dict) -> None:
-        super().on_load_checkpoint(checkpoint)
-        self.restore_structure(checkpoint["state_dict"])
 
     def restore_structure(self, state_dict: dict[str, Tensor]) -> None:
         """As many networks and mapped tasks as the state dict holds, before it loads."""

@@ -51,6 +51,16 @@ class GoalConditionedBC(L.LightningModule):
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         self.task_index = int(checkpoint.get("hispo_pl_task_index", 0))
+        self.restore_structure(checkpoint["state_dict"])
+
+    def restore_structure(self, state_dict: dict[str, Tensor]) -> None:
+        """Grow the module to a state dict's shape (networks, anchors, columns, per-task
+        buffers) before it loads; a fixed-size module has nothing to do."""
+
+    def freeze_all(self) -> None:
+        """Nothing trains until a callback makes the next task's parameters trainable."""
+        for p in self.parameters():
+            p.requires_grad_(False)
 
     @classmethod
     def from_checkpoint_file(cls, path: str) -> GoalConditionedBC:
@@ -135,18 +145,24 @@ class HierarchicalNet(nn.Module):
         return torch.cat([goal_features(subgoal_offset), observation], dim=-1)
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        obs, pos = batch["observation"], batch["position"]
-        offset = batch["subgoal"] - pos
-        mean_h, log_std_h = self.high(self.high_input(obs, pos, batch["goal"]))
-        mean_l, log_std_l = self.low(self.low_input(obs, offset))
-        loss_high = gaussian_nll(mean_h, log_std_h, offset)
-        loss_low = gaussian_nll(mean_l, log_std_l, batch["action"])
-        return {"loss": loss_high + loss_low, "loss_high": loss_high, "loss_low": loss_low}
+        return hierarchical_losses(self.high, self.low, batch)
 
     def act(self, observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
         offset, _ = self.high(self.high_input(observation, position, goal))
         action, _ = self.low(self.low_input(observation, offset))
         return action
+
+
+def hierarchical_losses(high: nn.Module, low: nn.Module, batch: dict[str, Tensor]) -> dict:
+    """HBC's losses for any pair of Gaussian policies called as ``policy(x) -> (mean, log_std)``:
+    the high one on the subgoal offset, the low one on the action given the true subgoal."""
+    obs, pos = batch["observation"], batch["position"]
+    offset = batch["subgoal"] - pos
+    mean_h, log_std_h = high(HierarchicalNet.high_input(obs, pos, batch["goal"]))
+    mean_l, log_std_l = low(HierarchicalNet.low_input(obs, offset))
+    loss_high = gaussian_nll(mean_h, log_std_h, offset)
+    loss_low = gaussian_nll(mean_l, log_std_l, batch["action"])
+    return {"loss": loss_high + loss_low, "loss_high": loss_high, "loss_low": loss_low}
 
 
 class FlatNet(nn.Module):

@@ -166,11 +166,6 @@ class HiSPO(GoalConditionedBC):
         self.scores[subspace] = nn.Parameter(torch.zeros(k, device=self.scores[subspace].device))
         self._set_task_alphas(subspace, self.task_alphas(subspace)[:, :k].contiguous())
 
-    def freeze_all(self) -> None:
-        """After a task: nothing trains until the next extension."""
-        for p in self.parameters():
-            p.requires_grad_(False)
-
     def current_alpha(self, subspace: str) -> Tensor:
         """The trained weights of the current task: softmax of the scores (no noise)."""
         return torch.softmax(self.scores[subspace].detach(), dim=-1)
@@ -325,10 +320,6 @@ class HiSPO(GoalConditionedBC):
         return self.task_alphas(self.subspace_names[0]).shape[0]
 
     # --- checkpoints ----------------------------------------------------------------------
-
-    def on_load_checkpoint(self, checkpoint: dict) -> None:
-        super().on_load_checkpoint(checkpoint)
-        self.restore_structure(checkpoint["state_dict"])
 
     def restore_structure(self, state_dict: dict[str, Tensor]) -> None:
         """Resize anchors, scores and stored weights to a state dict's, before it loads."""

@@ -19,10 +19,10 @@ from typing import Literal
 import torch
 from torch import Tensor
 
-from ..nn.mlp import feature_dim, gaussian_nll
+from ..nn.mlp import feature_dim
 from ..nn.progressive import ProgressivePolicy
 from .columns import record_task
-from .hbc import GoalConditionedBC, HierarchicalNet
+from .hbc import GoalConditionedBC, HierarchicalNet, hierarchical_losses
 
 POLICIES = ("high", "low")
 
@@ -105,10 +105,6 @@ class PNN(GoalConditionedBC):
         """Record the column task ``task`` acts with from now on (the newest)."""
         self.task_column = record_task(self.task_column, task, self.n_columns - 1)
 
-    def freeze_all(self) -> None:
-        for p in self.parameters():
-            p.requires_grad_(False)
-
     # --- training and acting --------------------------------------------------------------
 
     def column_for(self, task: int | None) -> int:
@@ -119,13 +115,7 @@ class PNN(GoalConditionedBC):
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         """The HBC losses of the newest column (the earlier ones run without gradients)."""
-        obs, pos = batch["observation"], batch["position"]
-        offset = batch["subgoal"] - pos
-        mean_h, log_std_h = self.high(HierarchicalNet.high_input(obs, pos, batch["goal"]))
-        mean_l, log_std_l = self.low(HierarchicalNet.low_input(obs, offset))
-        loss_high = gaussian_nll(mean_h, log_std_h, offset)
-        loss_low = gaussian_nll(mean_l, log_std_l, batch["action"])
-        return {"loss": loss_high + loss_low, "loss_high": loss_high, "loss_low": loss_low}
+        return hierarchical_losses(self.high, self.low, batch)
 
     @torch.no_grad()
     def act(
@@ -137,10 +127,6 @@ class PNN(GoalConditionedBC):
         return action
 
     # --- checkpoints ----------------------------------------------------------------------
-
-    def on_load_checkpoint(self, checkpoint: dict) -> None:
-        super().on_load_checkpoint(checkpoint)
-        self.restore_structure(checkpoint["state_dict"])
 
     def restore_structure(self, state_dict: dict[str, Tensor]) -> None:
         """As many columns and mapped tasks as the state dict holds, before it loads."""
