@@ -12,7 +12,7 @@ from helpers import fit_tiny_stream
 from hispo_pl.loop import load_module_state
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules import GoalConditionedBC, GrowingPolicy
-from hispo_pl.modules.hbc import HierarchicalNet
+from hispo_pl.modules.hbc import FlatNet, HierarchicalNet
 from hispo_pl.modules.pnn import PNN
 from hispo_pl.nn.mlp import ResidualMLP, feature_dim
 from hispo_pl.nn.progressive import (
@@ -105,6 +105,32 @@ def test_one_column_pnn_is_the_hbc_network():
     assert torch.equal(m.act(obs, pos, goal), hbc.act(obs, pos, goal))
     ours, theirs = m.losses(_batch()), hbc.losses(_batch())
     assert all(torch.equal(ours[k], theirs[k]) for k in theirs)
+
+
+def test_flat_pnn_is_flat_bc_in_columns():
+    """``backbone="bc"``: one column is the flat BC network; columns grow, freeze and keep
+    earlier tasks' actions as in the hierarchical PNN."""
+    m = _module(backbone="bc").eval()
+    flat = FlatNet(4, 2, hidden=16).eval()
+    flat.policy.net.load_state_dict(m.policy.net.columns[0].state_dict())
+    obs, pos, goal = _obs()
+    assert torch.equal(m.act(obs, pos, goal), flat.act(obs, pos, goal))
+    assert torch.equal(m.losses(_batch())["loss"], flat.losses(_batch())["loss"])
+    assert isinstance(m.reference_model(), FlatNet)
+    _run_tasks(m, range(1))
+    m.eval()
+    before = m.act(obs, pos, goal, task=0)
+    _run_tasks(m, range(1, 3))
+    m.eval()
+    assert m.n_columns == 3 and torch.equal(m.act(obs, pos, goal, task=0), before)
+    assert not torch.equal(m.act(obs, pos, goal, task=2), before)
+    m.start_task(2)
+    trainable = _trainable(m)
+    assert trainable and all(
+        n.startswith(("policy.net.columns.2.", "policy.net.laterals.1.")) for n in trainable
+    )
+    with pytest.raises(ValueError, match="unknown backbone"):
+        _module(backbone="mlp")
 
 
 def test_new_column_starts_independent_and_laterals_then_carry_earlier_features():
@@ -231,6 +257,17 @@ def test_checkpoint_alone_acts_identically_on_every_task(tmp_path):
         assert torch.equal(restored.act(obs, pos, goal, task=k), m.act(obs, pos, goal, task=k))
 
 
+def test_flat_pnn_checkpoint_restores_its_columns(tmp_path):
+    m = _module(backbone="bc")
+    _run_tasks(m, range(3))
+    m.eval()
+    restored = GoalConditionedBC.from_checkpoint_file(str(_checkpoint(m, tmp_path / "m.ckpt")))
+    assert isinstance(restored, PNN) and restored.n_columns == 3
+    obs, pos, goal = _obs()
+    for k in range(3):
+        assert torch.equal(restored.act(obs, pos, goal, task=k), m.act(obs, pos, goal, task=k))
+
+
 def test_resume_from_a_checkpoint_adds_one_column_and_freezes_the_rest(tmp_path):
     m = _module()
     _run_tasks(m, range(2))
@@ -276,3 +313,21 @@ def test_stream_end_to_end(tiny_umaze, tmp_path):
     pair = progressive_parameter_count(2, *high) + progressive_parameter_count(2, *low)
     assert results["MEM"] > 2
     assert results["MEM"] == pytest.approx(pair / unit, rel=1e-3)  # + the task map
+
+
+def test_flat_stream_end_to_end(tiny_umaze, tmp_path):
+    results = _fit("bc-pnn", tmp_path)
+    assert results["BWT"] == 0.0 and results["R"][1][0] == results["R"][0][0]
+    second = GoalConditionedBC.from_checkpoint_file(
+        str(tmp_path / "pointmaze-1" / "seed0" / "task_02.ckpt")
+    )
+    assert isinstance(second, PNN) and second.n_columns == 2
+    hp = second.hparams
+    shape = (
+        feature_dim(hp.goal_dim) + hp.obs_dim + 2 * hp.goal_dim,
+        hp.low_hidden,
+        2 * hp.action_dim,
+    )
+    # MEM's unit is one flat BC network: two columns and one lateral set of it
+    expected = progressive_parameter_count(2, *shape) / column_parameter_count(*shape)
+    assert results["MEM"] == pytest.approx(expected, rel=1e-3)

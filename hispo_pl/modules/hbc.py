@@ -165,6 +165,14 @@ def hierarchical_losses(high: nn.Module, low: nn.Module, batch: dict[str, Tensor
     return {"loss": loss_high + loss_low, "loss_high": loss_high, "loss_low": loss_low}
 
 
+def flat_losses(policy: nn.Module, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+    """Flat BC's loss for any Gaussian policy called as ``policy(x) -> (mean, log_std)`` on
+    the high policy's inputs: the NLL of the data's action."""
+    x = HierarchicalNet.high_input(batch["observation"], batch["position"], batch["goal"])
+    mean, log_std = policy(x)
+    return {"loss": gaussian_nll(mean, log_std, batch["action"])}
+
+
 class FlatNet(nn.Module):
     """Flat goal-conditioned BC: the high policy's inputs, one Gaussian policy over actions."""
 
@@ -177,9 +185,7 @@ class FlatNet(nn.Module):
         )
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        x = HierarchicalNet.high_input(batch["observation"], batch["position"], batch["goal"])
-        mean, log_std = self.policy(x)
-        return {"loss": gaussian_nll(mean, log_std, batch["action"])}
+        return flat_losses(self.policy, batch)
 
     def act(self, observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
         action, _ = self.policy(HierarchicalNet.high_input(observation, position, goal))

@@ -1,6 +1,7 @@
 """PNN (Progressive Neural Networks) on the HBC backbone: a new column per task for each of
 the two policies (high and low), lateral adapters from every earlier column at every layer,
-only the newest column (and its laterals) trainable.
+only the newest column (and its laterals) trainable. On the flat BC backbone
+(``backbone="bc"``) the one policy grows the same way.
 
 The module owns everything inference needs: the columns and laterals of both policies and the
 buffer mapping every finished task to the column it acts with, so a checkpoint alone acts on
@@ -22,16 +23,17 @@ from torch import Tensor
 from ..nn.mlp import feature_dim
 from ..nn.progressive import ProgressivePolicy
 from .columns import record_task
-from .hbc import GoalConditionedBC, HierarchicalNet, hierarchical_losses
-
-POLICIES = ("high", "low")
+from .hbc import Backbone, GoalConditionedBC, HierarchicalNet, flat_losses, hierarchical_losses
 
 
 class PNN(GoalConditionedBC):
-    """Progressive columns for the high and the low policy of the HBC backbone.
+    """Progressive columns for the high and the low policy of the HBC backbone (or for the one
+    policy of flat BC).
 
     Args:
         obs_dim, action_dim, goal_dim: sizes (linked from the data by the CLI).
+        backbone: ``hbc`` (columns for ``high`` and ``low``) or ``bc`` (columns for one flat
+            ``policy``, ``low_hidden`` wide, on the high policy's inputs), for the BC-vs-HBC table.
         high_hidden, low_hidden, dropout, high_log_std: each column's widths, as :class:`HBC`.
         lr, lr_schedule: Adam over the newest column and its laterals, restarted at every task.
 
@@ -49,6 +51,7 @@ class PNN(GoalConditionedBC):
         obs_dim: int,
         action_dim: int,
         goal_dim: int = 2,
+        backbone: Backbone = "hbc",
         high_hidden: int = 64,
         low_hidden: int = 256,
         dropout: float = 0.1,
@@ -59,23 +62,36 @@ class PNN(GoalConditionedBC):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
         f = feature_dim(goal_dim)
-        self.high = ProgressivePolicy(
-            f + obs_dim + 2 * goal_dim, high_hidden, goal_dim, dropout, fixed_log_std=high_log_std
-        )
-        self.low = ProgressivePolicy(f + obs_dim, low_hidden, action_dim, dropout)
+        if backbone == "hbc":
+            self.high = ProgressivePolicy(
+                f + obs_dim + 2 * goal_dim,
+                high_hidden,
+                goal_dim,
+                dropout,
+                fixed_log_std=high_log_std,
+            )
+            self.low = ProgressivePolicy(f + obs_dim, low_hidden, action_dim, dropout)
+            self.policy_names: tuple[str, ...] = ("high", "low")
+        elif backbone == "bc":
+            self.policy = ProgressivePolicy(
+                f + obs_dim + 2 * goal_dim, low_hidden, action_dim, dropout
+            )
+            self.policy_names = ("policy",)
+        else:
+            raise ValueError(f"unknown backbone {backbone!r}; expected 'hbc' or 'bc'")
         # column each finished task acts with (one entry per finished task)
         self.register_buffer("task_column", torch.zeros(0, dtype=torch.long))
 
     @property
     def n_columns(self) -> int:
-        return self.high.net.n_columns
+        return self._policies()[0].net.n_columns
 
     @property
     def n_tasks(self) -> int:
         return len(self.task_column)
 
-    def _policies(self) -> tuple[ProgressivePolicy, ProgressivePolicy]:
-        return self.high, self.low
+    def _policies(self) -> tuple[ProgressivePolicy, ...]:
+        return tuple(getattr(self, name) for name in self.policy_names)
 
     # --- the GrowingPolicy protocol -------------------------------------------------------
 
@@ -114,7 +130,9 @@ class PNN(GoalConditionedBC):
         return self.n_columns - 1
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        """The HBC losses of the newest column (the earlier ones run without gradients)."""
+        """The backbone's losses of the newest column (the earlier ones run without gradients)."""
+        if self.hparams.backbone == "bc":
+            return flat_losses(self.policy, batch)
         return hierarchical_losses(self.high, self.low, batch)
 
     @torch.no_grad()
@@ -122,7 +140,10 @@ class PNN(GoalConditionedBC):
         self, observation: Tensor, position: Tensor, goal: Tensor, task: int | None = None
     ) -> Tensor:
         column = self.column_for(self.task_index if task is None else task)
-        offset, _ = self.high(HierarchicalNet.high_input(observation, position, goal), column)
+        x = HierarchicalNet.high_input(observation, position, goal)
+        if self.hparams.backbone == "bc":
+            return self.policy(x, column)[0]
+        offset, _ = self.high(x, column)
         action, _ = self.low(HierarchicalNet.low_input(observation, offset), column)
         return action
 
@@ -130,7 +151,7 @@ class PNN(GoalConditionedBC):
 
     def restore_structure(self, state_dict: dict[str, Tensor]) -> None:
         """As many columns and mapped tasks as the state dict holds, before it loads."""
-        prefix = "high.net.columns."
+        prefix = f"{self.policy_names[0]}.net.columns."
         columns = {int(k[len(prefix) :].split(".")[0]) for k in state_dict if k.startswith(prefix)}
         while self.n_columns < len(columns):
             for policy in self._policies():
