@@ -96,7 +96,7 @@ def main() -> None:
     @torch.no_grad()
     def policy(obs, pos, goal):
         offset, _ = high(high_input(obs, pos, goal))
-        return hbc.net.low(hbc.low_input(obs, offset))[0]
+        return hbc.net.low(hbc.low_input(obs, offset, hbc.net.low_obs))[0]
 
     result = RolloutEvaluator(args.task, episodes=100, seed=0).run(policy)
     settings = {k: v for k, v in vars(args).items() if k != "ckpt"}

@@ -42,6 +42,7 @@ class GoalConditionedBC(L.LightningModule):
             hp.get("low_hidden", 256),
             hp.get("dropout", 0.1),
             hp.get("high_log_std"),
+            hp.get("low_obs", True),
         )
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
@@ -115,7 +116,9 @@ class HierarchicalNet(nn.Module):
 
     The high policy sees [features(goal − pos), obs, pos, goal] and predicts a Gaussian over the
     subgoal offset (subgoal − pos); the low policy sees [features(subgoal − pos), obs] (never
-    the absolute goal) and predicts a Gaussian over the action. Acting re-plans every step.
+    the absolute goal), or with ``low_obs=False`` only features(subgoal − pos) (never the
+    proprioceptive observation, so observation variants and absolute positions cannot reach
+    it), and predicts a Gaussian over the action. Acting re-plans every step.
     Kept apart from the LightningModule so that methods can hold several (one per task).
     """
 
@@ -128,38 +131,52 @@ class HierarchicalNet(nn.Module):
         low_hidden: int = 256,
         dropout: float = 0.1,
         high_log_std: float | None = None,
+        low_obs: bool = True,
     ):
         super().__init__()
         f = feature_dim(goal_dim)
+        self.low_obs = low_obs
         self.high = GaussianPolicy(
             f + obs_dim + 2 * goal_dim, high_hidden, goal_dim, dropout, fixed_log_std=high_log_std
         )
-        self.low = GaussianPolicy(f + obs_dim, low_hidden, action_dim, dropout)
+        self.low = GaussianPolicy(
+            low_input_dim(obs_dim, goal_dim, low_obs), low_hidden, action_dim, dropout
+        )
 
     @staticmethod
     def high_input(observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
         return torch.cat([goal_features(goal - position), observation, position, goal], dim=-1)
 
     @staticmethod
-    def low_input(observation: Tensor, subgoal_offset: Tensor) -> Tensor:
+    def low_input(observation: Tensor, subgoal_offset: Tensor, with_obs: bool = True) -> Tensor:
+        if not with_obs:
+            return goal_features(subgoal_offset)
         return torch.cat([goal_features(subgoal_offset), observation], dim=-1)
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        return hierarchical_losses(self.high, self.low, batch)
+        return hierarchical_losses(self.high, self.low, batch, self.low_obs)
 
     def act(self, observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
         offset, _ = self.high(self.high_input(observation, position, goal))
-        action, _ = self.low(self.low_input(observation, offset))
+        action, _ = self.low(self.low_input(observation, offset, self.low_obs))
         return action
 
 
-def hierarchical_losses(high: nn.Module, low: nn.Module, batch: dict[str, Tensor]) -> dict:
+def low_input_dim(obs_dim: int, goal_dim: int, low_obs: bool) -> int:
+    """Width of the low policy's input (see :meth:`HierarchicalNet.low_input`)."""
+    return feature_dim(goal_dim) + (obs_dim if low_obs else 0)
+
+
+def hierarchical_losses(
+    high: nn.Module, low: nn.Module, batch: dict[str, Tensor], low_obs: bool = True
+) -> dict:
     """HBC's losses for any pair of Gaussian policies called as ``policy(x) -> (mean, log_std)``:
-    the high one on the subgoal offset, the low one on the action given the true subgoal."""
+    the high one on the subgoal offset, the low one on the action given the true subgoal
+    (``low_obs``: whether the low policy's input holds the observation)."""
     obs, pos = batch["observation"], batch["position"]
     offset = batch["subgoal"] - pos
     mean_h, log_std_h = high(HierarchicalNet.high_input(obs, pos, batch["goal"]))
-    mean_l, log_std_l = low(HierarchicalNet.low_input(obs, offset))
+    mean_l, log_std_l = low(HierarchicalNet.low_input(obs, offset, low_obs))
     loss_high = gaussian_nll(mean_h, log_std_h, offset)
     loss_low = gaussian_nll(mean_l, log_std_l, batch["action"])
     return {"loss": loss_high + loss_low, "loss_high": loss_high, "loss_low": loss_low}
@@ -204,11 +221,12 @@ def make_backbone(
     low_hidden: int = 256,
     dropout: float = 0.1,
     high_log_std: float | None = None,
+    low_obs: bool = True,
 ) -> HierarchicalNet | FlatNet:
     """One single-task network: hierarchical (``hbc``) or flat (``bc``, the low width)."""
     if backbone == "hbc":
         return HierarchicalNet(
-            obs_dim, action_dim, goal_dim, high_hidden, low_hidden, dropout, high_log_std
+            obs_dim, action_dim, goal_dim, high_hidden, low_hidden, dropout, high_log_std, low_obs
         )
     if backbone == "bc":
         return FlatNet(obs_dim, action_dim, goal_dim, low_hidden, dropout)
@@ -219,7 +237,7 @@ class HBC(GoalConditionedBC):
     """Hierarchical goal-conditioned BC on one task (:class:`HierarchicalNet`).
 
     ``high_log_std``: a fixed log-std makes the high policy's loss a squared error on the
-    subgoal; ``None`` learns it.
+    subgoal; ``None`` learns it. ``low_obs``: whether the low policy sees the observation.
     """
 
     def __init__(
@@ -233,11 +251,12 @@ class HBC(GoalConditionedBC):
         lr: float = 3e-4,
         lr_schedule: Literal["cosine", "constant"] = "cosine",
         high_log_std: float | None = None,
+        low_obs: bool = True,
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
         self.net = HierarchicalNet(
-            obs_dim, action_dim, goal_dim, high_hidden, low_hidden, dropout, high_log_std
+            obs_dim, action_dim, goal_dim, high_hidden, low_hidden, dropout, high_log_std, low_obs
         )
 
     high_input = staticmethod(HierarchicalNet.high_input)

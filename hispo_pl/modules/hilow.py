@@ -64,6 +64,7 @@ class HiLOW(HiSPO):
         alpha_noise: float = 0.1,
         alpha_groups: int = 1,
         high_log_std: float | None = None,
+        low_obs: bool = True,
     ):
         if rank < 1:
             raise ValueError(f"HiLOW: rank must be >= 1, got {rank}")
@@ -87,6 +88,7 @@ class HiLOW(HiSPO):
             alpha_noise,
             alpha_groups,
             high_log_std,
+            low_obs,
         )
         for policy in self.policies.values():  # θ_1 as HiSPO draws it, then low-rank anchors
             low_rank_(policy.net, rank)

@@ -18,7 +18,7 @@ from torch import Tensor, nn
 from ..nn import eval_mode
 from ..nn.mlp import GaussianPolicy, feature_dim, gaussian_nll
 from ..nn.subspace import AnchorInit, SubspaceResidualMLP, cosine_similarity_penalty
-from .hbc import HBC, GoalConditionedBC
+from .hbc import HBC, GoalConditionedBC, low_input_dim
 
 SUBSPACES = ("high", "low")
 Precision = Literal["32", "bf16"]
@@ -81,6 +81,8 @@ class HiSPO(GoalConditionedBC):
             steps/s against 0.62× with 16 groups (``benchmarks/hispo_speed.py``).
         high_log_std: as in :class:`HBC`: a fixed log-std makes the high policy's loss a
             squared error on the subgoal; ``None`` learns it.
+        low_obs: as in :class:`HBC`: whether the low policy sees the observation (``False``:
+            only the features of the relative subgoal).
 
     Which policies a subspace holds is the class attribute ``subspace_policies`` (here each
     policy its own subspace; :class:`~hispo_pl.modules.cspo.CSPO` puts both in one): the
@@ -105,6 +107,7 @@ class HiSPO(GoalConditionedBC):
         alpha_noise: float = 0.1,
         alpha_groups: int = 1,
         high_log_std: float | None = None,
+        low_obs: bool = True,
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
@@ -118,7 +121,9 @@ class HiSPO(GoalConditionedBC):
                     dropout,
                     fixed_log_std=high_log_std,
                 ),
-                "low": SubspaceGaussianPolicy(f + obs_dim, low_hidden, action_dim, dropout),
+                "low": SubspaceGaussianPolicy(
+                    low_input_dim(obs_dim, goal_dim, low_obs), low_hidden, action_dim, dropout
+                ),
             }
         )
         if tuple(self.subspace_policies) != self.subspace_names:
@@ -236,7 +241,7 @@ class HiSPO(GoalConditionedBC):
         offset = batch["subgoal"] - pos
         if policy == "high":
             return HBC.high_input(obs, pos, batch["goal"]), offset
-        return HBC.low_input(obs, offset), batch["action"]
+        return HBC.low_input(obs, offset, self.hparams.low_obs), batch["action"]
 
     def _training_alphas(self, subspace: str, batch_size: int) -> Tensor:
         """One step's anchor weights of a subspace, one row per group of the batch."""
@@ -311,7 +316,8 @@ class HiSPO(GoalConditionedBC):
             self.alpha_for(self.subspace_of("high"), task),
         )
         action, _ = self.policies["low"](
-            HBC.low_input(observation, offset), self.alpha_for(self.subspace_of("low"), task)
+            HBC.low_input(observation, offset, self.hparams.low_obs),
+            self.alpha_for(self.subspace_of("low"), task),
         )
         return action
 

@@ -23,7 +23,14 @@ from torch import Tensor
 from ..nn.mlp import feature_dim
 from ..nn.progressive import ProgressivePolicy
 from .columns import record_task
-from .hbc import Backbone, GoalConditionedBC, HierarchicalNet, flat_losses, hierarchical_losses
+from .hbc import (
+    Backbone,
+    GoalConditionedBC,
+    HierarchicalNet,
+    flat_losses,
+    hierarchical_losses,
+    low_input_dim,
+)
 
 
 class PNN(GoalConditionedBC):
@@ -34,7 +41,7 @@ class PNN(GoalConditionedBC):
         obs_dim, action_dim, goal_dim: sizes (linked from the data by the CLI).
         backbone: ``hbc`` (columns for ``high`` and ``low``) or ``bc`` (columns for one flat
             ``policy``, ``low_hidden`` wide, on the high policy's inputs), for the BC-vs-HBC table.
-        high_hidden, low_hidden, dropout, high_log_std: each column's widths, as :class:`HBC`.
+        high_hidden, low_hidden, dropout, high_log_std, low_obs: each column's, as :class:`HBC`.
         lr, lr_schedule: Adam over the newest column and its laterals, restarted at every task.
 
     Example:
@@ -56,6 +63,7 @@ class PNN(GoalConditionedBC):
         low_hidden: int = 256,
         dropout: float = 0.1,
         high_log_std: float | None = None,
+        low_obs: bool = True,
         lr: float = 3e-4,
         lr_schedule: Literal["cosine", "constant"] = "cosine",
     ):
@@ -70,7 +78,9 @@ class PNN(GoalConditionedBC):
                 dropout,
                 fixed_log_std=high_log_std,
             )
-            self.low = ProgressivePolicy(f + obs_dim, low_hidden, action_dim, dropout)
+            self.low = ProgressivePolicy(
+                low_input_dim(obs_dim, goal_dim, low_obs), low_hidden, action_dim, dropout
+            )
             self.policy_names: tuple[str, ...] = ("high", "low")
         elif backbone == "bc":
             self.policy = ProgressivePolicy(
@@ -133,7 +143,7 @@ class PNN(GoalConditionedBC):
         """The backbone's losses of the newest column (the earlier ones run without gradients)."""
         if self.hparams.backbone == "bc":
             return flat_losses(self.policy, batch)
-        return hierarchical_losses(self.high, self.low, batch)
+        return hierarchical_losses(self.high, self.low, batch, self.hparams.low_obs)
 
     @torch.no_grad()
     def act(
@@ -144,7 +154,8 @@ class PNN(GoalConditionedBC):
         if self.hparams.backbone == "bc":
             return self.policy(x, column)[0]
         offset, _ = self.high(x, column)
-        action, _ = self.low(HierarchicalNet.low_input(observation, offset), column)
+        low_x = HierarchicalNet.low_input(observation, offset, self.hparams.low_obs)
+        action, _ = self.low(low_x, column)
         return action
 
     # --- checkpoints ----------------------------------------------------------------------

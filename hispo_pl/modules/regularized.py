@@ -124,6 +124,7 @@ class RegularizedFineTuning(NetworkPerTask):
         low_hidden: int = 256,
         dropout: float = 0.1,
         high_log_std: float | None = None,
+        low_obs: bool = True,
         lr: float = 3e-4,
         lr_schedule: Literal["cosine", "constant"] = "cosine",
     ):
@@ -140,6 +141,7 @@ class RegularizedFineTuning(NetworkPerTask):
             low_hidden=low_hidden,
             dropout=dropout,
             high_log_std=high_log_std,
+            low_obs=low_obs,
             lr=lr,
             lr_schedule=lr_schedule,
         )

@@ -1,0 +1,73 @@
+"""``low_obs=False``: the low policy sees only the features of the relative subgoal, in every
+method built on the HBC backbone."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from helpers import fit_tiny_stream
+
+from hispo_pl.metrics import module_bytes
+from hispo_pl.modules import GoalConditionedBC
+from hispo_pl.modules.columns import NetworkPerTask
+from hispo_pl.modules.cspo import CSPO
+from hispo_pl.modules.hbc import HBC, HierarchicalNet
+from hispo_pl.modules.hilow import HiLOW
+from hispo_pl.modules.hispo import HiSPO
+from hispo_pl.modules.pnn import PNN
+from hispo_pl.modules.regularized import RegularizedFineTuning
+from hispo_pl.nn.mlp import feature_dim
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+WIDTHS = {"high_hidden": 8, "low_hidden": 16, "dropout": 0.0}
+MODULES = [HBC, HiSPO, CSPO, HiLOW, PNN, NetworkPerTask, RegularizedFineTuning]
+
+
+def _batch(observation_seed: int, n: int = 32) -> dict[str, torch.Tensor]:
+    """A batch whose observations come from their own seed; everything else is fixed."""
+    g = torch.Generator().manual_seed(1)
+    batch = {k: torch.randn(n, 2, generator=g) for k in ("position", "goal", "subgoal", "action")}
+    batch["observation"] = torch.randn(
+        n, 4, generator=torch.Generator().manual_seed(observation_seed)
+    )
+    return batch
+
+
+def _low_loss(module: GoalConditionedBC, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    torch.manual_seed(0)  # HiSPO draws noisy anchor weights per step
+    return module.losses(batch)["loss_low"]
+
+
+@pytest.mark.parametrize("cls", MODULES, ids=lambda c: c.__name__)
+def test_low_policy_never_reads_the_observation(cls):
+    module = cls(4, 2, low_obs=False, **WIDTHS)
+    reference = module.reference_model()
+    assert isinstance(reference, HierarchicalNet)
+    assert reference.low.net.inp[0].in_features == feature_dim(2)
+    a, b = _low_loss(module, _batch(2)), _low_loss(module, _batch(3))
+    assert torch.equal(a, b)  # other observations, same low loss
+    with_obs = cls(4, 2, **WIDTHS)  # the default still reads it
+    assert not torch.equal(_low_loss(with_obs, _batch(2)), _low_loss(with_obs, _batch(3)))
+    # MEM's unit shrinks with the low policy's input: one unit is one network of this backbone
+    assert module_bytes(reference) < module_bytes(with_obs.reference_model())
+
+
+def test_hispo_stream_without_observation_in_the_low_policy(tiny_umaze, tmp_path):
+    results, run_dir = fit_tiny_stream(
+        "hispo",
+        tmp_path,
+        ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"],
+        "--model.init_args.low_obs",
+        "false",
+    )
+    assert results["BWT"] == 0.0
+    module = GoalConditionedBC.from_checkpoint_file(str(run_dir / "task_02.ckpt"))
+    assert isinstance(module, HiSPO) and module.hparams.low_obs is False
+    module.eval()
+    obs = torch.randn(5, 4)
+    pos, goal = torch.zeros(5, 2), torch.ones(5, 2)
+    offset, _ = module.policies["high"](HBC.high_input(obs, pos, goal), module.alpha_for("high", 1))
+    low_x = HBC.low_input(obs, offset, with_obs=False)
+    expected, _ = module.policies["low"](low_x, module.alpha_for("low", 1))
+    assert torch.equal(module.act(obs, pos, goal, task=1), expected)
