@@ -161,7 +161,6 @@ def run_lightning_cli(args: list[str] | None = None) -> HispoCLI:
 
 def data_main(argv: list[str]) -> int:
     from .data.datasets import (
-        DEFAULT_NOISE,
         DEFAULT_SEED,
         dataset_exists,
         dataset_stats,
@@ -176,19 +175,37 @@ def data_main(argv: list[str]) -> int:
     gen.add_argument("names", nargs="+", help=f"maze datasets: {', '.join(known_dataset_names())}")
     gen.add_argument("--episodes", type=int, default=500)
     gen.add_argument("--seed", type=int, default=DEFAULT_SEED)
-    gen.add_argument("--noise", type=float, default=DEFAULT_NOISE, help="Gaussian action noise std")
+    gen.add_argument(
+        "--noise",
+        type=float,
+        default=None,
+        help="Gaussian action noise std in env units (default: the expert's: 0.2 point, 0.04 ant)",
+    )
+    gen.add_argument(
+        "--expert-weights",
+        default=None,
+        help="AntMaze: the D4RL ant policy .npz (default: $HISPO_ANT_EXPERT, else "
+        "../shared/experts/d4rl_antmaze_goal_policy.npz)",
+    )
     gen.add_argument("--overwrite", action="store_true", help="replace an existing dataset")
     sub.add_parser("list", help="our local datasets and their descriptions")
     args = parser.parse_args(argv)
     if args.cmd == "generate":
+        from .envs.experts import ExpertWeightsNotFoundError
+
         for name in args.names:
-            dataset_id = generate_dataset(
-                name,
-                episodes=args.episodes,
-                seed=args.seed,
-                noise=args.noise,
-                overwrite=args.overwrite,
-            )
+            try:
+                dataset_id = generate_dataset(
+                    name,
+                    episodes=args.episodes,
+                    seed=args.seed,
+                    noise=args.noise,
+                    overwrite=args.overwrite,
+                    expert_weights=args.expert_weights,
+                )
+            except ExpertWeightsNotFoundError as err:
+                print(f"hispo-pl data: {err}", file=sys.stderr)
+                return 2
             print(json.dumps(dataset_stats(dataset_id), indent=2))
     else:
         for name in known_dataset_names():

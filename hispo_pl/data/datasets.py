@@ -18,7 +18,6 @@ from .tasks import FAMILIES, Task, parse_task, transform_action, transform_obser
 
 NAMESPACE = "hispo"
 DATASET_VERSION = 0
-DEFAULT_NOISE = 0.2
 DEFAULT_SEED = 0
 DEFAULT_EPISODES = 500
 
@@ -173,7 +172,9 @@ def _goal_stats(goals: np.ndarray, reached: np.ndarray, limit: int) -> tuple[int
 
 def collect_episode(env, expert, rng: np.random.Generator, seed: int, noise: float, steps: int):
     """One continuing episode of ``steps`` steps from a random start cell; new goal cells are
-    drawn by the env whenever the current one is reached. Returns a dict of arrays."""
+    drawn by the env whenever the current one is reached. An episode in which the expert fails
+    irrecoverably (the ant flips) is cut at that step: its clean prefix is kept and ``failed``
+    is set. Returns a dict of arrays."""
     from ..envs.mazes import free_cells, maze_array
 
     cells = free_cells(maze_array(env))
@@ -184,11 +185,15 @@ def collect_episode(env, expert, rng: np.random.Generator, seed: int, noise: flo
     record = {k: [obs[k]] for k in keys}
     actions, rewards, success = [], [], []
     low, high = env.action_space.low, env.action_space.high
+    failed = False
     for _ in range(steps):
         action = expert.act(obs)
         action = np.clip(action + noise * rng.standard_normal(action.shape), low, high)
         goal_before = obs["desired_goal"]
         obs, reward, _, _, info = env.step(action)
+        if expert.failed(obs):  # the transition into the failure is not kept
+            failed = True
+            break
         reached = bool(np.linalg.norm(obs["achieved_goal"] - goal_before) <= 0.45)
         for k in keys:
             record[k].append(obs[k])
@@ -198,21 +203,21 @@ def collect_episode(env, expert, rng: np.random.Generator, seed: int, noise: flo
     out = {k: np.asarray(v) for k, v in record.items()}
     out["actions"] = np.asarray(actions, dtype=np.float32)
     out["rewards"] = np.asarray(rewards, dtype=np.float64)
-    out["reached"] = np.asarray(success)
+    out["reached"] = np.asarray(success, dtype=bool)
+    out["failed"] = np.asarray(failed)
     return out
 
 
-def make_expert(name: str, env):
-    """The scripted expert of a dataset family."""
-    family = name.split("-")[0]
-    if family == "pointmaze":
-        from ..envs.experts import PointMazeExpert
+def make_expert(name: str, env, expert_weights: str | None = None):
+    """The expert of a dataset family (``expert_weights``: the ant policy's file)."""
+    from ..envs.experts import AntMazeExpert, PointMazeExpert
 
+    family = parse_task(name).family
+    if family == "pointmaze":
         return PointMazeExpert(env)
-    raise NotImplementedError(
-        f"no scripted expert for {family!r} in this release: only PointMaze data can be generated "
-        "here; AntMaze data generation is planned (the D4RL ids load when online)"
-    )
+    if family == "antmaze":
+        return AntMazeExpert(env, expert_weights)
+    raise NotImplementedError(f"no expert for the {family!r} family")
 
 
 def generate_dataset(
@@ -220,15 +225,18 @@ def generate_dataset(
     *,
     episodes: int = DEFAULT_EPISODES,
     seed: int = DEFAULT_SEED,
-    noise: float = DEFAULT_NOISE,
+    noise: float | None = None,
     overwrite: bool = False,
     progress: bool = True,
+    expert_weights: str | None = None,
 ) -> str:
     """Collect ``episodes`` expert episodes of maze ``name`` (``pointmaze-umaze``) and store them
     as the Minari dataset ``hispo/<name>-expert-v0``. Returns the dataset id.
 
-    Collection is resumable: each episode is seeded by (seed, index) and staged to disk as soon as
-    it is done, so an interrupted run continues where it stopped with identical data.
+    ``noise``: std of the Gaussian action noise in env units (default: the expert's, 0.2 for
+    the ball, 0.04 = D4RL's 0.2 before the ant's action scaling). Collection is resumable: each
+    episode is seeded by (seed, index) and staged to disk as soon as it is done, so an
+    interrupted run continues where it stopped with identical data.
     """
     import minari
     from minari.data_collector import EpisodeBuffer
@@ -244,10 +252,11 @@ def generate_dataset(
         minari.delete_dataset(dataset_id)
     steps = task.defaults.max_episode_steps
     env = make_env(name, continuing_task=True, reset_target=True)
-    expert = make_expert(name, env)
+    expert = make_expert(name, env, expert_weights)
+    noise = expert.action_noise if noise is None else noise
     staging = dataset_path("") / ".staging" / f"{name}-seed{seed}-noise{noise}"
     staging.mkdir(parents=True, exist_ok=True)
-    ok = failed = 0
+    ok = failed = flips = kept_steps = 0
     for k in tqdm(range(episodes), desc=f"collecting {name}", disable=not progress, unit="ep"):
         path = staging / f"ep_{k:05d}.npz"
         if not path.exists():
@@ -261,7 +270,9 @@ def generate_dataset(
         ep = dict(np.load(staging / f"ep_{k:05d}.npz"))
         r_ok, r_failed = _goal_stats(ep["desired_goal"][:-1], ep["reached"], steps)
         ok, failed = ok + r_ok, failed + r_failed
+        flips += int(ep.get("failed", False))
         n = len(ep["actions"])
+        kept_steps += n
         buffers.append(
             EpisodeBuffer(
                 id=k,
@@ -276,7 +287,19 @@ def generate_dataset(
             )
         )
     success = ok / max(ok + failed, 1)
-    stats = {"goals_reached": ok, "goals_failed": failed, "goal_success": success}
+    stats = {
+        "goals_reached": ok,
+        "goals_failed": failed,
+        "goal_success": success,
+        "episodes_cut_at_failure": flips,
+        "steps": kept_steps,
+    }
+    cut = (
+        f" {flips} of {episodes} episodes ended early because the agent failed irrecoverably "
+        f"(the ant flipped): the clean prefix is kept, {kept_steps} of {episodes * steps} steps."
+        if flips
+        else ""
+    )
     minari.create_dataset_from_buffers(
         dataset_id=dataset_id,
         buffer=buffers,
@@ -288,10 +311,10 @@ def generate_dataset(
         code_permalink="https://github.com/hispo-pl/hispo-pl",
         description=(
             f"{episodes} continuing episodes of {steps} steps on {task.env_id}, collected by the "
-            f"scripted expert '{expert.name}' (BFS over maze cells + PD to the next waypoint) "
-            f"with Gaussian action noise std {noise}, seed {seed}; a new goal cell is drawn each "
-            f"time the goal is reached. Expert goal success: {ok}/{ok + failed} = {success:.4f} "
-            f"(a goal fails if not reached within {steps} steps). Stats: {json.dumps(stats)}"
+            f"expert '{expert.name}' ({expert.description}) with Gaussian action noise std "
+            f"{noise}, seed {seed}; a new goal cell is drawn each time the goal is reached. "
+            f"Expert goal success: {ok}/{ok + failed} = {success:.4f} (a goal fails if not "
+            f"reached within {steps} steps).{cut} Stats: {json.dumps(stats)}"
         ),
     )
     shutil.rmtree(staging, ignore_errors=True)

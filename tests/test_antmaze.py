@@ -1,0 +1,164 @@
+"""AntMaze: the variants on the quadruped, the expert's pieces and its missing-weights error,
+and collection cutting an episode at a flip. Nothing here needs the expert's weights file."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from hispo_pl.cli import main
+from hispo_pl.data.datasets import collect_episode, episodes_to_arrays
+from hispo_pl.data.tasks import VARIANTS, parse_task, transform_action, transform_observation
+from hispo_pl.envs import make_env
+from hispo_pl.envs.experts import (
+    ANT_ACTION_SCALE,
+    ANT_EXPERT_ENV,
+    ANT_WEIGHT_KEYS,
+    AntGoalPolicy,
+    AntMazeExpert,
+    ExpertWeightsNotFoundError,
+    PointMazeExpert,
+    ant_expert_weights_path,
+    ant_upright,
+)
+
+RESET = {"reset_cell": np.array([1, 1]), "goal_cell": np.array([3, 1])}
+STEPS = 15
+
+
+@pytest.fixture(scope="module")
+def ant_envs():
+    envs = {v: make_env(f"antmaze-umaze-{v}") for v in VARIANTS}
+    yield envs
+    for env in envs.values():
+        env.close()
+
+
+def _roll(env, actions, seed=7):
+    obs, _ = env.reset(seed=seed, options=RESET)
+    trajectory = [obs]
+    for a in actions:
+        obs, *_ = env.step(a)
+        trajectory.append(obs)
+    return trajectory
+
+
+def test_ant_body_observation_and_leg_permutation():
+    task = parse_task("antmaze-umaze-PA")
+    assert (task.env_family.obs_dim, task.env_family.action_dim) == (27, 8)
+    # one leg = two actuators: PA shifts the actions by two entries
+    np.testing.assert_array_equal(transform_action(task, np.arange(8)), np.roll(np.arange(8), 2))
+    assert make_env("antmaze-umaze").observation_space["observation"].shape == (27,)
+
+
+@pytest.mark.parametrize("variant", list(VARIANTS))
+def test_wrapped_ant_follows_base_trajectory_and_matches_the_dataset_view(ant_envs, variant):
+    """The wrapped ant, fed the dataset's actions as the variant agent sees them, follows the
+    base ant's trajectory and observes exactly the dataset's transformed observations."""
+    task = parse_task(f"antmaze-umaze-{variant}")
+    actions = np.random.default_rng(0).uniform(-1, 1, (STEPS, 8)).astype(np.float32)
+    base = _roll(ant_envs["N"], actions)
+    episode = SimpleNamespace(
+        observations={k: np.stack([o[k] for o in base]) for k in ("observation", "achieved_goal")},
+        actions=actions,
+    )
+    data = episodes_to_arrays([episode]).for_task(task)
+    wrapped = _roll(ant_envs[variant], data.actions[:STEPS])
+    assert np.linalg.norm(base[-1]["observation"] - base[0]["observation"]) > 0.1  # it moved
+    for k, (b, w) in enumerate(zip(base, wrapped, strict=True)):
+        np.testing.assert_array_equal(w["achieved_goal"], b["achieved_goal"])
+        np.testing.assert_array_equal(
+            w["observation"], transform_observation(task, b["observation"])
+        )
+        np.testing.assert_array_equal(w["observation"].astype(np.float32), data.observations[k])
+    if variant in ("IA", "PA"):  # control: the normal actions do not reproduce the trajectory
+        diverged = _roll(ant_envs[variant], actions)
+        assert not np.allclose(diverged[-1]["observation"], base[-1]["observation"])
+
+
+# --- the expert, without its weights ---------------------------------------------------------
+
+
+def _fake_weights(seed: int = 0) -> dict[str, np.ndarray]:
+    g = np.random.default_rng(seed)
+    shapes = {
+        "fc0_weight": (256, 29),
+        "fc0_bias": (256,),
+        "fc1_weight": (256, 256),
+        "fc1_bias": (256,),
+        "last_fc_weight": (8, 256),
+        "last_fc_bias": (8,),
+    }
+    return {k: 0.1 * g.standard_normal(s).astype(np.float32) for k, s in shapes.items()}
+
+
+def test_missing_weights_say_where_to_get_them(tmp_path, monkeypatch):
+    missing = tmp_path / "nowhere.npz"
+    monkeypatch.setenv(ANT_EXPERT_ENV, str(missing))
+    with pytest.raises(ExpertWeightsNotFoundError) as err:
+        ant_expert_weights_path()
+    message = str(err.value)
+    assert str(missing) in message and ANT_EXPERT_ENV in message and "D4RL" in message
+    with pytest.raises(ExpertWeightsNotFoundError):
+        AntMazeExpert(make_env("antmaze-umaze"))
+    # an explicit path wins over the environment variable
+    path = tmp_path / "weights.npz"
+    np.savez(path, **_fake_weights())
+    assert ant_expert_weights_path(path) == path.resolve()
+
+
+def test_generate_without_weights_fails_with_the_message(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    missing = tmp_path / "nowhere.npz"
+    code = main(["data", "generate", "antmaze-umaze", "--expert-weights", str(missing)])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "AntMaze expert weights not found" in err and str(missing) in err
+    assert not (tmp_path / "minari" / "hispo").exists()  # nothing half-made
+
+
+def test_expert_input_action_scale_and_flip_detection(tmp_path):
+    path = tmp_path / "weights.npz"
+    np.savez(path, **_fake_weights())
+    env = make_env("antmaze-umaze")
+    expert = AntMazeExpert(env, path)
+    obs, _ = env.reset(seed=0, options=RESET)
+    x = expert.policy_input(obs)
+    assert x.shape == (29,)
+    np.testing.assert_array_equal(x[:27], obs["observation"])
+    assert np.linalg.norm(x[27:]) == pytest.approx(10.0)  # the direction, rescaled to length 10
+    waypoint = expert.planner.waypoint(obs["achieved_goal"], obs["desired_goal"])
+    direction = waypoint - obs["achieved_goal"]
+    np.testing.assert_allclose(x[27:], 10 * direction / np.linalg.norm(direction))
+    action = expert.act(obs)
+    np.testing.assert_allclose(action, ANT_ACTION_SCALE * AntGoalPolicy(_fake_weights())(x))
+    assert np.abs(action).max() <= ANT_ACTION_SCALE
+    assert not expert.failed(obs)  # the ant starts upright
+    upright, on_its_back = np.zeros(27), np.zeros(27)
+    upright[1] = 1.0  # quaternion (w, x, y, z) = identity
+    on_its_back[2] = 1.0  # half a turn about x
+    assert ant_upright(upright) == 1.0 and ant_upright(on_its_back) == -1.0
+    with pytest.raises(ValueError, match="lack"):
+        AntGoalPolicy({k: v for k, v in _fake_weights().items() if k != ANT_WEIGHT_KEYS[0]})
+
+
+def test_collection_cuts_an_episode_at_the_failure():
+    """An expert that fails at step 12 leaves 11 kept transitions and the flag set."""
+
+    class FailsAt(PointMazeExpert):
+        def __init__(self, env, at):
+            super().__init__(env)
+            self.at, self.calls = at, 0
+
+        def failed(self, obs):
+            self.calls += 1
+            return self.calls >= self.at
+
+    env = make_env("pointmaze-umaze", continuing_task=True, reset_target=True)
+    rng = np.random.default_rng(0)
+    ep = collect_episode(env, FailsAt(env, 12), rng, seed=0, noise=0.1, steps=50)
+    assert len(ep["actions"]) == 11 and len(ep["observation"]) == 12 and bool(ep["failed"])
+    full = collect_episode(env, PointMazeExpert(env), rng, seed=0, noise=0.1, steps=50)
+    assert len(full["actions"]) == 50 and not bool(full["failed"])
