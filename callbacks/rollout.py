@@ -55,6 +55,7 @@ class RolloutEvaluation(L.Callback):
         self.last = {
             "success": result.success,
             "episode_length": result.episode_length,
+            "flip_rate": result.flip_rate,
             "step": trainer.global_step,
         }
         if trainer.logger is not None:
@@ -63,6 +64,7 @@ class RolloutEvaluation(L.Callback):
                 {
                     f"{prefix}eval/success": result.success,
                     f"{prefix}eval/episode_length": result.episode_length,
+                    f"{prefix}eval/flip_rate": result.flip_rate,
                 },
                 step=trainer.global_step,
             )

@@ -82,8 +82,8 @@ class HispoCLI(LightningCLI):
                 print(
                     f"[hispo-pl] {type(self.model).__name__} on {task}: success "
                     f"{100 * cb.last['success']:.1f}% over {cb.episodes} episodes, mean episode "
-                    f"length {cb.last['episode_length']:.1f}, after {cb.last['step']} steps "
-                    f"({self.fit_seconds:.0f} s with evaluations)"
+                    f"length {cb.last['episode_length']:.1f}{_flips(cb.last['flip_rate'])}, after "
+                    f"{cb.last['step']} steps ({self.fit_seconds:.0f} s with evaluations)"
                 )
                 if self.trainer.log_dir:
                     print(f"[hispo-pl] TensorBoard logs: {self.trainer.log_dir}")
@@ -266,6 +266,7 @@ def evaluate_main(argv: list[str]) -> int:
         "episodes": result.episodes,
         "success": result.success,
         "episode_length": result.episode_length,
+        "flip_rate": result.flip_rate,
     }
     if args.json:
         print(json.dumps(out))
@@ -273,9 +274,14 @@ def evaluate_main(argv: list[str]) -> int:
         print(
             f"[hispo-pl] {out['method']} ({args.ckpt}, policy of task {out['as_task']}) on "
             f"{task}: success {100 * result.success:.1f}% over {result.episodes} episodes, "
-            f"mean episode length {result.episode_length:.1f}"
+            f"mean episode length {result.episode_length:.1f}{_flips(result.flip_rate)}"
         )
     return 0
+
+
+def _flips(rate: float) -> str:
+    """The share of episodes that ended with the agent flipped over, when there were any."""
+    return f", {100 * rate:.0f}% flipped over" if rate > 0 else ""
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,7 +10,7 @@ import torch
 from tqdm.auto import tqdm
 
 from .data.tasks import Task, parse_task
-from .envs import make_env
+from .envs import agent_flipped, make_env
 from .envs.mazes import free_cells, maze_array
 from .nn import eval_mode
 
@@ -25,6 +25,11 @@ class RolloutResult:
     episodes: int
     successes: np.ndarray  # [episodes] bool
     lengths: np.ndarray  # [episodes] int
+    flips: np.ndarray  # [episodes] bool: ended by the agent flipping over (the ant)
+
+    @property
+    def flip_rate(self) -> float:
+        return float(self.flips.mean())
 
 
 def start_goal_cells(grid: np.ndarray, episodes: int, seed: int) -> np.ndarray:
@@ -61,19 +66,20 @@ class RolloutEvaluator:
 
     def run(self, policy: PolicyFn, progress: bool = False) -> RolloutResult:
         successes = np.zeros(self.episodes, dtype=bool)
+        flips = np.zeros(self.episodes, dtype=bool)
         lengths = np.zeros(self.episodes, dtype=np.int64)
         n_envs = len(self.envs)
         for wave in tqdm(
             range(0, self.episodes, n_envs), desc=f"eval {self.task}", disable=not progress
         ):
             ids = list(range(wave, min(wave + n_envs, self.episodes)))
-            s, l_ = self._run_wave(policy, ids)
-            successes[ids], lengths[ids] = s, l_
+            successes[ids], lengths[ids], flips[ids] = self._run_wave(policy, ids)
         return RolloutResult(
-            float(successes.mean()), float(lengths.mean()), self.episodes, successes, lengths
+            float(successes.mean()), float(lengths.mean()), self.episodes, successes, lengths, flips
         )
 
-    def _run_wave(self, policy: PolicyFn, ids: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    def _run_wave(self, policy: PolicyFn, ids: list[int]) -> tuple[np.ndarray, ...]:
+        """Successes, lengths and flips of the episodes ``ids``; a flipped episode ends."""
         envs = self.envs[: len(ids)]
         obs = [
             env.reset(
@@ -84,6 +90,7 @@ class RolloutEvaluator:
         ]
         active = np.ones(len(ids), dtype=bool)
         success = np.zeros(len(ids), dtype=bool)
+        flipped = np.zeros(len(ids), dtype=bool)
         length = np.zeros(len(ids), dtype=np.int64)
         for _ in range(self.max_steps):
             idx = np.flatnonzero(active)
@@ -100,9 +107,11 @@ class RolloutEvaluator:
                 length[i] += 1
                 if info.get("success", False):
                     success[i] = True
-                if terminated or truncated or success[i]:
+                elif agent_flipped(envs[i]):
+                    flipped[i] = True
+                if terminated or truncated or success[i] or flipped[i]:
                     active[i] = False
-        return success, length
+        return success, length, flipped
 
     def close(self) -> None:
         for env in self.envs:

@@ -5,13 +5,15 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
+import mujoco
 import numpy as np
 import pytest
+import torch
 
 from hispo_pl.cli import main
 from hispo_pl.data.datasets import collect_episode, episodes_to_arrays
 from hispo_pl.data.tasks import VARIANTS, parse_task, transform_action, transform_observation
-from hispo_pl.envs import make_env
+from hispo_pl.envs import agent_flipped, make_env
 from hispo_pl.envs.experts import (
     ANT_ACTION_SCALE,
     ANT_EXPERT_ENV,
@@ -23,6 +25,7 @@ from hispo_pl.envs.experts import (
     ant_expert_weights_path,
     ant_upright,
 )
+from hispo_pl.evaluation import RolloutEvaluator
 
 RESET = {"reset_cell": np.array([1, 1]), "goal_cell": np.array([3, 1])}
 STEPS = 15
@@ -162,3 +165,38 @@ def test_collection_cuts_an_episode_at_the_failure():
     assert len(ep["actions"]) == 11 and len(ep["observation"]) == 12 and bool(ep["failed"])
     full = collect_episode(env, PointMazeExpert(env), rng, seed=0, noise=0.1, steps=50)
     assert len(full["actions"]) == 50 and not bool(full["failed"])
+
+
+def _turn_over(env) -> None:
+    """Put the ant on its back (half a turn about x), raised so it lands there."""
+    ant = env.unwrapped.ant_env
+    ant.data.qpos[2] = 1.0
+    ant.data.qpos[3:7] = (0.0, 1.0, 0.0, 0.0)
+    mujoco.mj_forward(ant.model, ant.data)
+
+
+def test_flips_are_detected_from_the_simulator_in_any_variant():
+    env = make_env("antmaze-umaze-PO")
+    env.reset(seed=0, options=RESET)
+    assert not agent_flipped(env)
+    _turn_over(env)
+    assert agent_flipped(env)
+    assert not agent_flipped(make_env("pointmaze-umaze"))
+
+
+def test_evaluation_counts_and_ends_flipped_episodes():
+    evaluator = RolloutEvaluator("antmaze-umaze-IO", episodes=3, seed=0, max_episode_steps=20)
+    calls = []
+
+    def policy(observation, position, goal):
+        if not calls:  # at the first step, turn the first episode's ant over
+            _turn_over(evaluator.envs[0])
+        calls.append(len(observation))
+        return torch.zeros(len(observation), 8)
+
+    result = evaluator.run(policy)
+    assert result.flips.tolist() == [True, False, False] and result.flip_rate == pytest.approx(
+        1 / 3
+    )
+    assert result.lengths[0] == 1 and not result.successes[0]  # it ended at the flip
+    assert calls[1] == 2  # the other two episodes went on without it

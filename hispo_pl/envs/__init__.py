@@ -42,4 +42,15 @@ def make_env(task: str | Task, *, continuing_task: bool = False, **kwargs) -> gy
     return env
 
 
-__all__ = ["make_env", "VariantWrapper"]
+def agent_flipped(env: gym.Env) -> bool:
+    """Whether the agent has failed irrecoverably: the ant on its back (torso up axis below
+    the horizon, read from the simulator, so any variant's view of it is irrelevant). The
+    point mass cannot fail this way."""
+    ant = getattr(env.unwrapped, "ant_env", None)
+    if ant is None:
+        return False
+    _, qx, qy, _ = ant.data.qpos[3:7]
+    return bool(1.0 - 2.0 * (qx * qx + qy * qy) < 0.0)
+
+
+__all__ = ["make_env", "agent_flipped", "VariantWrapper"]
