@@ -180,7 +180,7 @@ class AntMazeExpert:
 
     name = "antmaze-bfs-d4rl-policy"
     description = "BFS over maze cells, D4RL's goal-reaching ant policy to the next cell centre"
-    action_noise = 0.2 * ANT_ACTION_SCALE  # D4RL's 0.2 in policy units
+    action_noise = 0.04  # D4RL's 0.2 in policy units, times ANT_ACTION_SCALE
 
     def __init__(self, env, weights: str | os.PathLike | None = None, direction_scale=10.0):
         self.policy = AntGoalPolicy.load(weights)
