@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from hispo_pl.cli import main
+from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.data.datasets import collect_episode, episodes_to_arrays
 from hispo_pl.data.tasks import VARIANTS, parse_task, transform_action, transform_observation
 from hispo_pl.envs import agent_flipped, make_env
@@ -200,3 +201,14 @@ def test_evaluation_counts_and_ends_flipped_episodes():
     )
     assert result.lengths[0] == 1 and not result.successes[0]  # it ended at the flip
     assert calls[1] == 2  # the other two episodes went on without it
+
+
+def test_a_stream_datamodule_takes_its_sizes_from_the_stream():
+    """``data.stream: antmaze-2`` alone builds the module for the ant (27 / 8), not for the
+    default PointMaze task; a stream mixing families is refused."""
+    dm = TaskDataModule(stream="antmaze-2")
+    assert dm.task == parse_task("antmaze-umaze-PA[500]")
+    assert (dm.obs_dim, dm.action_dim) == (27, 8)
+    assert TaskDataModule().task == parse_task("pointmaze-umaze-N[500]")
+    with pytest.raises(ValueError, match="one environment family"):
+        TaskDataModule(stream=["pointmaze-umaze-N[3]", "antmaze-umaze-N[3]"])

@@ -27,11 +27,15 @@ class _Batches(IterableDataset):
             yield self.sampler.sample()
 
 
+DEFAULT_TASK = "pointmaze-umaze-N[500]"
+
+
 class TaskDataModule(L.LightningDataModule):
     """Expert data of one task, relabelled by HER, as batches of ``batch_size``.
 
     Args:
-        task: task spec, e.g. ``pointmaze-umaze-N[500]`` (variant applied to the data).
+        task: task spec, e.g. ``pointmaze-umaze-N[500]`` (variant applied to the data);
+            default: the stream's first task, else ``pointmaze-umaze-N[500]``.
         dataset: a Minari id to read instead of our local data for the task's maze, e.g.
             ``D4RL/pointmaze/umaze-v2`` (downloaded when online).
         batch_size: samples per gradient step.
@@ -43,8 +47,9 @@ class TaskDataModule(L.LightningDataModule):
         steps_per_epoch: batches per epoch (Trainer's ``max_steps`` bounds the total).
         seed: sampler seed.
         stream: a stream name (``pointmaze-1``) or list of task specs: ``hispo-pl fit`` then
-            trains the whole stream with the ContinualLoop (``task`` is ignored), and the
-            evaluation at each task's end covers every task of the stream.
+            trains the whole stream with the ContinualLoop (each task in turn; the module is
+            built for the first one's sizes), and the evaluation at each task's end covers
+            every task of the stream.
         replay: also train on every earlier task of the stream, each batch split in equal
             shares over the tasks seen so far (the RPL baseline: an upper bound that keeps old
             data, which the continual setting forbids). Task-end callbacks still draw their
@@ -53,7 +58,7 @@ class TaskDataModule(L.LightningDataModule):
 
     def __init__(
         self,
-        task: str = "pointmaze-umaze-N[500]",
+        task: str | None = None,
         dataset: str | None = None,
         batch_size: int = 1024,
         waysteps: int | None = None,
@@ -69,7 +74,15 @@ class TaskDataModule(L.LightningDataModule):
         self.stream: list[str] | None = (
             None if stream is None else [t.spec for t in parse_stream(stream)]
         )
-        self.task: Task = parse_task(task)
+        self.task: Task = parse_task(
+            task if task is not None else (self.stream or [DEFAULT_TASK])[0]
+        )
+        families = {parse_task(t).env_family.name for t in self.stream or []}
+        if len(families) > 1:
+            raise ValueError(
+                f"a stream's tasks must share one environment family (one set of observation "
+                f"and action sizes); got {', '.join(sorted(families))} in {self.stream}"
+            )
         self.dataset = dataset
         self.batch_size = batch_size
         self._her_options = (waysteps, her_temperature, her_strategy, goal_horizon)
