@@ -24,7 +24,6 @@ from hispo_pl.envs.experts import (
     ExpertWeightsNotFoundError,
     PointMazeExpert,
     ant_expert_weights_path,
-    ant_upright,
 )
 from hispo_pl.evaluation import RolloutEvaluator
 
@@ -123,7 +122,7 @@ def test_generate_without_weights_fails_with_the_message(tmp_path, monkeypatch, 
     assert not (tmp_path / "minari" / "hispo").exists()  # nothing half-made
 
 
-def test_expert_input_action_scale_and_flip_detection(tmp_path):
+def test_expert_input_and_action_scale(tmp_path):
     path = tmp_path / "weights.npz"
     np.savez(path, **_fake_weights())
     env = make_env("antmaze-umaze")
@@ -139,33 +138,34 @@ def test_expert_input_action_scale_and_flip_detection(tmp_path):
     action = expert.act(obs)
     np.testing.assert_allclose(action, ANT_ACTION_SCALE * AntGoalPolicy(_fake_weights())(x))
     assert np.abs(action).max() <= ANT_ACTION_SCALE
-    assert not expert.failed(obs)  # the ant starts upright
-    upright, on_its_back = np.zeros(27), np.zeros(27)
-    upright[1] = 1.0  # quaternion (w, x, y, z) = identity
-    on_its_back[2] = 1.0  # half a turn about x
-    assert ant_upright(upright) == 1.0 and ant_upright(on_its_back) == -1.0
     with pytest.raises(ValueError, match="lack"):
         AntGoalPolicy({k: v for k, v in _fake_weights().items() if k != ANT_WEIGHT_KEYS[0]})
 
 
-def test_collection_cuts_an_episode_at_the_failure():
-    """An expert that fails at step 12 leaves 11 kept transitions and the flag set."""
+def test_collection_cuts_an_episode_at_the_flip(tmp_path):
+    """An ant turned over during its 12th action leaves 11 kept transitions and the flag set;
+    the ball, which cannot flip, runs its whole episode."""
+    path = tmp_path / "weights.npz"
+    np.savez(path, **_fake_weights())
 
-    class FailsAt(PointMazeExpert):
+    class TurnsOverAt(AntMazeExpert):
         def __init__(self, env, at):
-            super().__init__(env)
-            self.at, self.calls = at, 0
+            super().__init__(env, path)
+            self.env, self.at, self.calls = env, at, 0
 
-        def failed(self, obs):
+        def act(self, obs):
             self.calls += 1
-            return self.calls >= self.at
+            if self.calls == self.at:
+                _turn_over(self.env)
+            return super().act(obs)
 
-    env = make_env("pointmaze-umaze", continuing_task=True, reset_target=True)
+    env = make_env("antmaze-umaze", continuing_task=True, reset_target=True)
     rng = np.random.default_rng(0)
-    ep = collect_episode(env, FailsAt(env, 12), rng, seed=0, noise=0.1, steps=50)
-    assert len(ep["actions"]) == 11 and len(ep["observation"]) == 12 and bool(ep["failed"])
-    full = collect_episode(env, PointMazeExpert(env), rng, seed=0, noise=0.1, steps=50)
-    assert len(full["actions"]) == 50 and not bool(full["failed"])
+    ep = collect_episode(env, TurnsOverAt(env, 12), rng, seed=0, noise=0.04, steps=50)
+    assert len(ep["actions"]) == 11 and len(ep["observation"]) == 12 and bool(ep["flipped"])
+    ball = make_env("pointmaze-umaze", continuing_task=True, reset_target=True)
+    full = collect_episode(ball, PointMazeExpert(ball), rng, seed=0, noise=0.1, steps=50)
+    assert len(full["actions"]) == 50 and not bool(full["flipped"])
 
 
 def _turn_over(env) -> None:

@@ -172,9 +172,10 @@ def _goal_stats(goals: np.ndarray, reached: np.ndarray, limit: int) -> tuple[int
 
 def collect_episode(env, expert, rng: np.random.Generator, seed: int, noise: float, steps: int):
     """One continuing episode of ``steps`` steps from a random start cell; new goal cells are
-    drawn by the env whenever the current one is reached. An episode in which the expert fails
-    irrecoverably (the ant flips) is cut at that step: its clean prefix is kept and ``failed``
-    is set. Returns a dict of arrays."""
+    drawn by the env whenever the current one is reached. An episode in which the agent flips
+    over (:func:`~hispo_pl.envs.agent_flipped`, the check evaluation uses) is cut at that step:
+    its clean prefix is kept and ``flipped`` is set. Returns a dict of arrays."""
+    from ..envs import agent_flipped
     from ..envs.mazes import free_cells, maze_array
 
     cells = free_cells(maze_array(env))
@@ -185,14 +186,14 @@ def collect_episode(env, expert, rng: np.random.Generator, seed: int, noise: flo
     record = {k: [obs[k]] for k in keys}
     actions, rewards, success = [], [], []
     low, high = env.action_space.low, env.action_space.high
-    failed = False
+    flipped = False
     for _ in range(steps):
         action = expert.act(obs)
         action = np.clip(action + noise * rng.standard_normal(action.shape), low, high)
         goal_before = obs["desired_goal"]
         obs, reward, _, _, info = env.step(action)
-        if expert.failed(obs):  # the transition into the failure is not kept
-            failed = True
+        if agent_flipped(env):  # the transition into the flip is not kept
+            flipped = True
             break
         reached = bool(np.linalg.norm(obs["achieved_goal"] - goal_before) <= 0.45)
         for k in keys:
@@ -204,7 +205,7 @@ def collect_episode(env, expert, rng: np.random.Generator, seed: int, noise: flo
     out["actions"] = np.asarray(actions, dtype=np.float32)
     out["rewards"] = np.asarray(rewards, dtype=np.float64)
     out["reached"] = np.asarray(success, dtype=bool)
-    out["failed"] = np.asarray(failed)
+    out["flipped"] = np.asarray(flipped)
     return out
 
 
@@ -270,7 +271,7 @@ def generate_dataset(
         ep = dict(np.load(staging / f"ep_{k:05d}.npz"))
         r_ok, r_failed = _goal_stats(ep["desired_goal"][:-1], ep["reached"], steps)
         ok, failed = ok + r_ok, failed + r_failed
-        flips += int(ep.get("failed", False))
+        flips += int(ep.get("flipped", False))
         n = len(ep["actions"])
         kept_steps += n
         buffers.append(
@@ -291,12 +292,12 @@ def generate_dataset(
         "goals_reached": ok,
         "goals_failed": failed,
         "goal_success": success,
-        "episodes_cut_at_failure": flips,
+        "episodes_cut_at_flip": flips,
         "steps": kept_steps,
     }
     cut = (
-        f" {flips} of {episodes} episodes ended early because the agent failed irrecoverably "
-        f"(the ant flipped): the clean prefix is kept, {kept_steps} of {episodes * steps} steps."
+        f" {flips} of {episodes} episodes ended early because the agent flipped over: the "
+        f"clean prefix is kept, {kept_steps} of {episodes * steps} steps."
         if flips
         else ""
     )
@@ -312,7 +313,7 @@ def generate_dataset(
         description=(
             f"{episodes} continuing episodes of {steps} steps on {task.env_id}, collected by the "
             f"expert '{expert.name}' ({expert.description}) with Gaussian action noise std "
-            f"{noise}, seed {seed}; a new goal cell is drawn each time the goal is reached. "
+            f"{noise:g}, seed {seed}; a new goal cell is drawn each time the goal is reached. "
             f"Expert goal success: {ok}/{ok + failed} = {success:.4f} (a goal fails if not "
             f"reached within {steps} steps).{cut} Stats: {json.dumps(stats)}"
         ),

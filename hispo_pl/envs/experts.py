@@ -83,17 +83,10 @@ class PointMazeExpert:
     def reset(self) -> None:
         self.planner.reset()
 
-    def waypoint(self, pos: np.ndarray, goal: np.ndarray) -> np.ndarray:
-        return self.planner.waypoint(pos, goal)
-
     def act(self, obs: dict) -> np.ndarray:
         pos, vel = obs["observation"][:2], obs["observation"][2:4]
-        target = self.waypoint(pos, obs["desired_goal"])
+        target = self.planner.waypoint(pos, obs["desired_goal"])
         return np.clip(self.kp * (target - pos) - self.kd * vel, -1.0, 1.0)
-
-    def failed(self, obs: dict) -> bool:
-        """The ball cannot fail irrecoverably."""
-        return False
 
 
 # --- AntMaze ---------------------------------------------------------------------------------
@@ -152,7 +145,6 @@ class AntGoalPolicy:
         if missing:
             raise ValueError(f"ant expert weights lack {', '.join(missing)}")
         self.w = {k: np.asarray(weights[k], dtype=np.float64) for k in ANT_WEIGHT_KEYS}
-        self.in_dim = self.w["fc0_weight"].shape[1]
 
     @classmethod
     def load(cls, path: str | os.PathLike | None = None) -> AntGoalPolicy:
@@ -166,17 +158,9 @@ class AntGoalPolicy:
         return np.tanh(w["last_fc_weight"] @ h + w["last_fc_bias"])
 
 
-def ant_upright(observation: np.ndarray) -> float:
-    """z component of the torso's up axis, from the body observation's quaternion (entries
-    1..4 = w, x, y, z after the torso height): 1 upright, below 0 on its back."""
-    qx, qy = observation[..., 2], observation[..., 3]
-    return 1.0 - 2.0 * (qx * qx + qy * qy)
-
-
 class AntMazeExpert:
     """D4RL's ant policy steered at the next cell centre of a BFS path (the goal in its cell);
-    actions scaled by 0.2 for gymnasium's ant. :meth:`failed` reports a flip (the ant on its
-    back cannot recover), which collection cuts the episode at."""
+    actions scaled by 0.2 for gymnasium's ant."""
 
     name = "antmaze-bfs-d4rl-policy"
     description = "BFS over maze cells, D4RL's goal-reaching ant policy to the next cell centre"
@@ -200,6 +184,3 @@ class AntMazeExpert:
 
     def act(self, obs: dict) -> np.ndarray:
         return ANT_ACTION_SCALE * self.policy(self.policy_input(obs))
-
-    def failed(self, obs: dict) -> bool:
-        return bool(ant_upright(obs["observation"]) < 0.0)
