@@ -26,6 +26,7 @@ class RolloutResult:
     successes: np.ndarray  # [episodes] bool
     lengths: np.ndarray  # [episodes] int
     flips: np.ndarray  # [episodes] bool: ended by the agent flipping over (the ant)
+    trajectories: list[np.ndarray] | None = None  # per episode [length + 1, goal_dim] positions
 
     @property
     def flip_rate(self) -> float:
@@ -38,6 +39,19 @@ def start_goal_cells(grid: np.ndarray, episodes: int, seed: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
     pick = np.stack([rng.choice(len(cells), 2, replace=False) for _ in range(episodes)])
     return cells[pick]
+
+
+def reset_options(env, episodes: int, seed: int) -> list[dict]:
+    """Seeded start and goal of each evaluation episode as ``env.reset`` options: distinct free
+    cells of a gymnasium-robotics maze, or a video-game layout's start and goal points."""
+    from .envs.videogame import GameNavEnv
+
+    if isinstance(env.unwrapped, GameNavEnv):
+        rng = np.random.default_rng(seed)
+        draws = [env.unwrapped.layout.sample_start_goal(rng) for _ in range(episodes)]
+        return [{"start": start, "goal": goal} for start, goal in draws]
+    cells = start_goal_cells(maze_array(env), episodes, seed)
+    return [{"reset_cell": start, "goal_cell": goal} for start, goal in cells]
 
 
 class RolloutEvaluator:
@@ -62,32 +76,42 @@ class RolloutEvaluator:
             make_env(self.task, max_episode_steps=steps) for _ in range(min(episodes, max_envs))
         ]
         self.max_steps = steps
-        self.cells = start_goal_cells(maze_array(self.envs[0]), episodes, seed)
+        self.options = reset_options(self.envs[0], episodes, seed)
 
-    def run(self, policy: PolicyFn, progress: bool = False) -> RolloutResult:
+    def run(self, policy: PolicyFn, progress: bool = False, record: bool = False) -> RolloutResult:
+        """Success, lengths and flips of every episode; ``record`` also keeps each episode's
+        positions (for pictures)."""
         successes = np.zeros(self.episodes, dtype=bool)
         flips = np.zeros(self.episodes, dtype=bool)
         lengths = np.zeros(self.episodes, dtype=np.int64)
+        paths: list[np.ndarray] = [np.zeros((0, 0))] * self.episodes
         n_envs = len(self.envs)
         for wave in tqdm(
             range(0, self.episodes, n_envs), desc=f"eval {self.task}", disable=not progress
         ):
             ids = list(range(wave, min(wave + n_envs, self.episodes)))
-            successes[ids], lengths[ids], flips[ids] = self._run_wave(policy, ids)
+            successes[ids], lengths[ids], flips[ids], wave_paths = self._run_wave(policy, ids)
+            for k, path in zip(ids, wave_paths, strict=True):
+                paths[k] = path
         return RolloutResult(
-            float(successes.mean()), float(lengths.mean()), self.episodes, successes, lengths, flips
+            float(successes.mean()),
+            float(lengths.mean()),
+            self.episodes,
+            successes,
+            lengths,
+            flips,
+            paths if record else None,
         )
 
-    def _run_wave(self, policy: PolicyFn, ids: list[int]) -> tuple[np.ndarray, ...]:
-        """Successes, lengths and flips of the episodes ``ids``; a flipped episode ends."""
+    def _run_wave(self, policy: PolicyFn, ids: list[int]) -> tuple:
+        """Successes, lengths, flips and position paths of the episodes ``ids``; a flipped
+        episode ends."""
         envs = self.envs[: len(ids)]
         obs = [
-            env.reset(
-                seed=self.seed * 100_003 + k,
-                options={"reset_cell": self.cells[k, 0], "goal_cell": self.cells[k, 1]},
-            )[0]
+            env.reset(seed=self.seed * 100_003 + k, options=self.options[k])[0]
             for env, k in zip(envs, ids, strict=True)
         ]
+        paths = [[o["achieved_goal"]] for o in obs]
         active = np.ones(len(ids), dtype=bool)
         success = np.zeros(len(ids), dtype=bool)
         flipped = np.zeros(len(ids), dtype=bool)
@@ -104,6 +128,7 @@ class RolloutEvaluator:
             actions = actions.detach().cpu().numpy()
             for a, i in zip(actions, idx, strict=True):
                 obs[i], _, terminated, truncated, info = envs[i].step(a)
+                paths[i].append(obs[i]["achieved_goal"])
                 length[i] += 1
                 if info.get("success", False):
                     success[i] = True
@@ -111,7 +136,7 @@ class RolloutEvaluator:
                     flipped[i] = True
                 if terminated or truncated or success[i] or flipped[i]:
                     active[i] = False
-        return success, length, flipped
+        return success, length, flipped, [np.asarray(p) for p in paths]
 
     def close(self) -> None:
         for env in self.envs:

@@ -59,6 +59,10 @@ def test_parse_variants_and_sizes(spec, expected):
 @pytest.mark.parametrize("family", list(FAMILIES))
 @pytest.mark.parametrize("variant", list(VARIANTS))
 def test_spec_round_trip(family, variant):
+    if variant not in FAMILIES[family].variants:
+        with pytest.raises(TaskSpecError, match="has no variant"):
+            parse_task(f"{family}-{next(iter(FAMILIES[family].mazes))}-{variant}")
+        return
     for maze in FAMILIES[family].mazes:
         task = Task(family, maze, variant, 123)
         assert parse_task(task.spec) == task
@@ -85,6 +89,10 @@ def test_antmaze_env_id():
         ("!!garbage!!", "malformed"),
         ("pointmaze-umaze-N[10]extra", "malformed"),
         ("pointmaze_umaze", "malformed"),
+        ("amazeville-HXXO", "unknown maze"),
+        ("amazeville-hxoo", "unknown maze"),
+        ("simpletown-OXO-PO", "has no variant"),
+        ("simpletown-Base", "malformed"),
     ],
 )
 def test_malformed_specs_raise_with_grammar(spec, why):
@@ -100,6 +108,35 @@ def test_malformed_specs_raise_with_grammar(spec, why):
 def test_grammar_lists_all_families_and_variants():
     for name in (*FAMILIES, *VARIANTS):
         assert name in GRAMMAR
+    for family in ("amazeville", "simpletown"):
+        for maze in FAMILIES[family].mazes:
+            assert maze in GRAMMAR
+
+
+def test_game_specs_default_to_the_papers_episode_counts():
+    assert parse_task("amazeville-HXOO") == Task("amazeville", "HXOO", "N", 100)
+    assert parse_task("simpletown-OXO") == Task("simpletown", "OXO", "N", 250)
+    assert parse_task("simpletown-BASE[7]").episodes == 7
+    assert parse_task("amazeville-LXOX").env_id == "hispo_pl/AmazeVille_LXOX-v0"
+
+
+@pytest.mark.parametrize(
+    "stream, mazes",
+    [
+        ("videogame-1", ["HOOO", "HXOO", "LOOO", "LOOX"]),
+        ("videogame-2", ["LOOX", "HXOO", "HOOO", "LXOX"]),
+        ("amazeville-1", ["HOOX", "HXOX", "HXOX", "HOOX"]),
+        ("amazeville-2", ["LOOO", "LOOO", "LXOX", "LXOO"]),
+        ("simpletown-1", ["BASE", "OXO", "BASE", "OOX"]),
+        ("simpletown-2", ["BASE", "OXX", "XOO", "OXX"]),
+    ],
+)
+def test_topological_streams(stream, mazes):
+    tasks = parse_stream(stream)
+    assert [t.maze for t in tasks] == mazes
+    family = "simpletown" if stream.startswith("simpletown") else "amazeville"
+    assert {t.family for t in tasks} == {family}
+    assert {t.episodes for t in tasks} == {FAMILIES[family].default_episodes}
 
 
 # --- streams -----------------------------------------------------------------------------
@@ -139,7 +176,15 @@ def test_antmaze_streams_mirror_pointmaze(k):
 
 
 def test_stream_registry_and_errors():
-    assert set(STREAMS) == {"pointmaze-1", "pointmaze-2", "antmaze-1", "antmaze-2"}
+    assert set(STREAMS) == {
+        *(
+            f"{family}-{k}"
+            for family in ("pointmaze", "antmaze", "amazeville", "simpletown")
+            for k in "12"
+        ),
+        "videogame-1",
+        "videogame-2",
+    }
     with pytest.raises(TaskSpecError, match="known streams"):
         parse_stream("pointmaze-3")
     tasks = parse_stream(["pointmaze-umaze-IA[5]", "antmaze-large"])

@@ -43,6 +43,8 @@ class Family:
     action_group: int  # entries per actuator group: PA shifts the actions by this much
     mazes: dict[str, MazeDefaults]
     env_kwargs: dict = field(default_factory=dict)
+    variants: tuple[str, ...] = tuple(VARIANTS)  # the variants that make sense for this agent
+    default_episodes: int = 500  # dataset episodes per maze when a spec names none
 
 
 FAMILIES: dict[str, Family] = {
@@ -73,21 +75,56 @@ FAMILIES: dict[str, Family] = {
         },
         env_kwargs={"include_cfrc_ext_in_observation": False},
     ),
+    # the paper's Godot mazes rebuilt on MuJoCo (hispo_pl.envs.videogame); maze names are the
+    # paper's (HXOO, OXO, ...); the gamepad has no meaningful inversion or permutation
+    "amazeville": Family(
+        name="amazeville",
+        env_id="hispo_pl/AmazeVille_{}-v0",
+        obs_dim=127,
+        action_dim=8,
+        goal_dim=3,
+        action_group=1,
+        mazes={
+            m: MazeDefaults(m, 300, waysteps=10, her_temperature=100.0)
+            for m in ("HOOO", "HOOX", "HXOO", "HXOX", "LOOO", "LOOX", "LXOO", "LXOX")
+        },
+        variants=("N",),
+        default_episodes=100,
+    ),
+    "simpletown": Family(
+        name="simpletown",
+        env_id="hispo_pl/SimpleTown_{}-v0",
+        obs_dim=127,
+        action_dim=8,
+        goal_dim=3,
+        action_group=1,
+        mazes={
+            m: MazeDefaults(m, 100, waysteps=3, her_temperature=15.0)
+            for m in ("BASE", "OOO", "OOX", "OXO", "XOO", "XXO", "XOX", "OXX")
+        },
+        variants=("N",),
+        default_episodes=250,
+    ),
 }
+
+GAME_FAMILIES = ("amazeville", "simpletown")
 
 DEFAULT_EPISODES = 500
 
 _SPEC_RE = re.compile(
-    r"^(?P<family>[a-z]+)-(?P<maze>[a-z]+)(?:-(?P<variant>[A-Z]+))?(?:\[(?P<episodes>\d+)\])?$"
+    r"^(?P<family>[a-z]+)-(?P<maze>[a-z]+|[A-Z]+)(?:-(?P<variant>[A-Z]+))?(?:\[(?P<episodes>\d+)\])?$"
 )
 
 GRAMMAR = (
     "task spec grammar: <family>-<maze>[-<variant>][[<episodes>]]\n"
     f"  family   : {' | '.join(FAMILIES)}\n"
-    "  maze     : umaze | medium | large\n"
-    f"  variant  : {' | '.join(VARIANTS)} (default N)\n"
-    f"  episodes : positive integer (default {DEFAULT_EPISODES})\n"
-    "  examples : pointmaze-umaze, pointmaze-umaze-PO[500], antmaze-large-IA[100]"
+    "  maze     : umaze | medium | large (pointmaze, antmaze);\n"
+    "             HOOO | HOOX | HXOO | HXOX | LOOO | LOOX | LXOO | LXOX (amazeville);\n"
+    "             BASE | OOO | OOX | OXO | XOO | XXO | XOX | OXX (simpletown)\n"
+    f"  variant  : {' | '.join(VARIANTS)} (default N; the game mazes only N)\n"
+    "  episodes : positive integer (default 500; amazeville 100, simpletown 250)\n"
+    "  examples : pointmaze-umaze, pointmaze-umaze-PO[500], antmaze-large-IA[100],\n"
+    "             amazeville-HXOO[100], simpletown-OXO[250]"
 )
 
 
@@ -138,13 +175,18 @@ def parse_task(spec: str | Task) -> Task:
         raise TaskSpecError(f"malformed task spec {spec!r}\n{GRAMMAR}")
     family, maze = m["family"], m["maze"]
     variant = m["variant"] or "N"
-    episodes = int(m["episodes"]) if m["episodes"] else DEFAULT_EPISODES
     if family not in FAMILIES:
         raise TaskSpecError(f"unknown family {family!r} in {spec!r}\n{GRAMMAR}")
     if maze not in FAMILIES[family].mazes:
         raise TaskSpecError(f"unknown maze {maze!r} in {spec!r}\n{GRAMMAR}")
     if variant not in VARIANTS:
         raise TaskSpecError(f"unknown variant {variant!r} in {spec!r}\n{GRAMMAR}")
+    if variant not in FAMILIES[family].variants:
+        raise TaskSpecError(
+            f"the {family} family has no variant {variant!r} (only "
+            f"{', '.join(FAMILIES[family].variants)}) in {spec!r}\n{GRAMMAR}"
+        )
+    episodes = int(m["episodes"]) if m["episodes"] else FAMILIES[family].default_episodes
     if episodes <= 0:
         raise TaskSpecError(f"episodes must be positive in {spec!r}\n{GRAMMAR}")
     return Task(family, maze, variant, episodes)
@@ -159,6 +201,15 @@ STREAMS: dict[str, list[str]] = {
     f"{family}-{k}": [f"{family}-{maze}-{variant}[{DEFAULT_EPISODES}]" for maze, variant in shape]
     for family in ("pointmaze", "antmaze")
     for k, shape in _STREAM_SHAPES.items()
+}
+# topological streams (paper appendix A.1.2): doors open or close, blocks rise or sink
+STREAMS |= {
+    "videogame-1": [f"amazeville-{m}[100]" for m in ("HOOO", "HXOO", "LOOO", "LOOX")],
+    "videogame-2": [f"amazeville-{m}[100]" for m in ("LOOX", "HXOO", "HOOO", "LXOX")],
+    "amazeville-1": [f"amazeville-{m}[100]" for m in ("HOOX", "HXOX", "HXOX", "HOOX")],
+    "amazeville-2": [f"amazeville-{m}[100]" for m in ("LOOO", "LOOO", "LXOX", "LXOO")],
+    "simpletown-1": [f"simpletown-{m}[250]" for m in ("BASE", "OXO", "BASE", "OOX")],
+    "simpletown-2": [f"simpletown-{m}[250]" for m in ("BASE", "OXX", "XOO", "OXX")],
 }
 
 

@@ -1,4 +1,4 @@
-"""Environments: gymnasium-robotics mazes in every task variant."""
+"""Environments: gymnasium-robotics mazes in every task variant, and the video-game mazes."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import os
 
 import gymnasium as gym
 
-from ..data.tasks import Task, parse_task
+from ..data.tasks import FAMILIES, GAME_FAMILIES, Task, parse_task
 from .wrappers import VariantWrapper
 
 _registered = False
@@ -18,6 +18,15 @@ def _register() -> None:
         import gymnasium_robotics
 
         gym.register_envs(gymnasium_robotics)
+        for family in GAME_FAMILIES:
+            fam = FAMILIES[family]
+            for maze, defaults in fam.mazes.items():
+                gym.register(
+                    id=fam.env_id.format(defaults.env_name),
+                    entry_point="hispo_pl.envs.videogame.env:GameNavEnv",
+                    kwargs={"game": family, "maze": maze},
+                    max_episode_steps=defaults.max_episode_steps,
+                )
         _registered = True
 
 
