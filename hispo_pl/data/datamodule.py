@@ -124,6 +124,11 @@ class TaskDataModule(L.LightningDataModule):
     def goal_dim(self) -> int:
         return self.task.env_family.goal_dim
 
+    @property
+    def binary_actions(self) -> int:
+        """Leading action entries that are buttons (the game mazes' gamepad)."""
+        return self.task.env_family.binary_actions
+
     def prepare_data(self) -> None:
         load_episodes(self.dataset or self.task)  # generates our local data on first use
 

@@ -14,12 +14,24 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from .tasks import FAMILIES, Task, parse_task, transform_action, transform_observation
+from .tasks import (
+    FAMILIES,
+    GAME_FAMILIES,
+    Task,
+    parse_task,
+    transform_action,
+    transform_observation,
+)
 
 NAMESPACE = "hispo"
 DATASET_VERSION = 0
 DEFAULT_SEED = 0
-DEFAULT_EPISODES = 500
+
+
+def default_episodes(name: str | Task) -> int:
+    """Episodes a maze's dataset holds unless asked otherwise: 500 for PointMaze / AntMaze,
+    the paper's 100 (AmazeVille) and 250 (SimpleTown) for the game mazes."""
+    return parse_task(name).env_family.default_episodes
 
 
 class DatasetNotFoundError(FileNotFoundError):
@@ -126,7 +138,7 @@ def load_episodes(source: str | Task, *, generate_if_missing: bool = True) -> Ep
                     f"dataset {dataset_id} not found under {dataset_path('')}; create it with\n"
                     f"  hispo-pl data generate {task.dataset_name}"
                 )
-            generate_dataset(task.dataset_name, episodes=max(task.episodes, DEFAULT_EPISODES))
+            generate_dataset(task.dataset_name, episodes=max(task.episodes, default_episodes(task)))
         ds = minari.load_dataset(dataset_id)
         if ds.total_episodes < task.episodes:
             raise DatasetNotFoundError(
@@ -209,6 +221,34 @@ def collect_episode(env, expert, rng: np.random.Generator, seed: int, noise: flo
     return out
 
 
+def collect_game_episode(env, expert, rng: np.random.Generator, seed: int, steps: int):
+    """One video-game episode from a drawn start point to a drawn goal point, ending when the
+    goal is touched (the env terminates) or after ``steps`` steps. Same dict of arrays as
+    :func:`collect_episode`; ``reached`` marks the step that touched the goal."""
+    start, goal = env.unwrapped.layout.sample_start_goal(rng)
+    obs, _ = env.reset(seed=seed, options={"start": start, "goal": goal})
+    expert.reset(rng)
+    keys = ("observation", "achieved_goal", "desired_goal")
+    record = {k: [obs[k]] for k in keys}
+    actions, rewards, success = [], [], []
+    for _ in range(steps):
+        action = expert.act(obs)
+        obs, reward, terminated, truncated, info = env.step(action)
+        for k in keys:
+            record[k].append(obs[k])
+        actions.append(action)
+        rewards.append(reward)
+        success.append(bool(info["success"]))
+        if terminated or truncated:
+            break
+    out = {k: np.asarray(v) for k, v in record.items()}
+    out["actions"] = np.asarray(actions, dtype=np.float32)
+    out["rewards"] = np.asarray(rewards, dtype=np.float64)
+    out["reached"] = np.asarray(success, dtype=bool)
+    out["flipped"] = np.asarray(False)
+    return out
+
+
 def make_expert(name: str, env, expert_weights: str | None = None):
     """The expert of a dataset family (``expert_weights``: the ant policy's file)."""
     from ..envs.experts import AntMazeExpert, PointMazeExpert
@@ -218,13 +258,17 @@ def make_expert(name: str, env, expert_weights: str | None = None):
         return PointMazeExpert(env)
     if family == "antmaze":
         return AntMazeExpert(env, expert_weights)
+    if family in GAME_FAMILIES:
+        from ..envs.videogame.expert import GameExpert
+
+        return GameExpert(env)
     raise NotImplementedError(f"no expert for the {family!r} family")
 
 
 def generate_dataset(
     name: str,
     *,
-    episodes: int = DEFAULT_EPISODES,
+    episodes: int | None = None,
     seed: int = DEFAULT_SEED,
     noise: float | None = None,
     overwrite: bool = False,
@@ -252,7 +296,9 @@ def generate_dataset(
             return dataset_id
         minari.delete_dataset(dataset_id)
     steps = task.defaults.max_episode_steps
-    env = make_env(name, continuing_task=True, reset_target=True)
+    episodes = episodes or default_episodes(task)
+    game = task.family in GAME_FAMILIES
+    env = make_env(name) if game else make_env(name, continuing_task=True, reset_target=True)
     expert = make_expert(name, env, expert_weights)
     noise = expert.action_noise if noise is None else noise
     staging = dataset_path("") / ".staging" / f"{name}-seed{seed}-noise{noise}"
@@ -262,7 +308,12 @@ def generate_dataset(
         path = staging / f"ep_{k:05d}.npz"
         if not path.exists():
             rng = np.random.default_rng([seed, k])
-            ep = collect_episode(env, expert, rng, seed * 1_000_003 + k, noise, steps)
+            ep_seed = seed * 1_000_003 + k
+            ep = (
+                collect_game_episode(env, expert, rng, ep_seed, steps)
+                if game
+                else collect_episode(env, expert, rng, ep_seed, noise, steps)
+            )
             tmp = path.with_suffix(".tmp.npz")
             np.savez(tmp, **ep)
             tmp.replace(path)
@@ -274,6 +325,7 @@ def generate_dataset(
         flips += int(ep.get("flipped", False))
         n = len(ep["actions"])
         kept_steps += n
+        ended = bool(game and ep["reached"][-1])  # a game episode ends by touching its goal
         buffers.append(
             EpisodeBuffer(
                 id=k,
@@ -283,8 +335,8 @@ def generate_dataset(
                 },
                 actions=ep["actions"],
                 rewards=list(ep["rewards"]),
-                terminations=[False] * n,
-                truncations=[False] * (n - 1) + [True],
+                terminations=[False] * (n - 1) + [ended],
+                truncations=[False] * (n - 1) + [not ended],
             )
         )
     success = ok / max(ok + failed, 1)
@@ -301,6 +353,22 @@ def generate_dataset(
         if flips
         else ""
     )
+    if game:
+        description = (
+            f"{episodes} episodes on {task.env_id}, each from a start point to a goal point of "
+            f"the layout, ending when the goal is touched or after {steps} steps; seed {seed}. "
+            f"Planner-generated, not human play (the paper's data was played by people): the "
+            f"expert '{expert.name}' ({expert.description}). Expert success: {ok}/{ok + failed}"
+            f" = {success:.4f}. Stats: {json.dumps(stats)}"
+        )
+    else:
+        description = (
+            f"{episodes} continuing episodes of {steps} steps on {task.env_id}, collected by the "
+            f"expert '{expert.name}' ({expert.description}) with Gaussian action noise std "
+            f"{noise:g}, seed {seed}; a new goal cell is drawn each time the goal is reached. "
+            f"Expert goal success: {ok}/{ok + failed} = {success:.4f} (a goal fails if not "
+            f"reached within {steps} steps).{cut} Stats: {json.dumps(stats)}"
+        )
     minari.create_dataset_from_buffers(
         dataset_id=dataset_id,
         buffer=buffers,
@@ -310,13 +378,7 @@ def generate_dataset(
         algorithm_name=expert.name,
         author="hispo-pl",
         code_permalink="https://github.com/hispo-pl/hispo-pl",
-        description=(
-            f"{episodes} continuing episodes of {steps} steps on {task.env_id}, collected by the "
-            f"expert '{expert.name}' ({expert.description}) with Gaussian action noise std "
-            f"{noise:g}, seed {seed}; a new goal cell is drawn each time the goal is reached. "
-            f"Expert goal success: {ok}/{ok + failed} = {success:.4f} (a goal fails if not "
-            f"reached within {steps} steps).{cut} Stats: {json.dumps(stats)}"
-        ),
+        description=description,
     )
     shutil.rmtree(staging, ignore_errors=True)
     return dataset_id

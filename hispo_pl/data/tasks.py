@@ -45,6 +45,7 @@ class Family:
     env_kwargs: dict = field(default_factory=dict)
     variants: tuple[str, ...] = tuple(VARIANTS)  # the variants that make sense for this agent
     default_episodes: int = 500  # dataset episodes per maze when a spec names none
+    binary_actions: int = 0  # leading action entries that are buttons (Bernoulli in the policy)
 
 
 FAMILIES: dict[str, Family] = {
@@ -90,6 +91,7 @@ FAMILIES: dict[str, Family] = {
         },
         variants=("N",),
         default_episodes=100,
+        binary_actions=6,
     ),
     "simpletown": Family(
         name="simpletown",
@@ -104,6 +106,7 @@ FAMILIES: dict[str, Family] = {
         },
         variants=("N",),
         default_episodes=250,
+        binary_actions=6,
     ),
 }
 

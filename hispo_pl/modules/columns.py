@@ -66,7 +66,8 @@ class NetworkPerTask(GoalConditionedBC):
         backbone: ``hbc`` (hierarchical) or ``bc`` (flat, the low width), for the BC-vs-HBC table.
         init: a task's network starts ``fresh`` (scratch) or from the ``previous`` task's.
         keep: ``all`` networks (one per task, each task acts with its own) or the ``last`` one.
-        high_hidden, low_hidden, dropout, high_log_std, low_obs: the backbone (as :class:`HBC`).
+        high_hidden, low_hidden, dropout, high_log_std, low_obs, binary_actions: the backbone
+            (as :class:`HBC`).
         lr, lr_schedule: Adam, restarted at every task.
     """
 
@@ -85,6 +86,7 @@ class NetworkPerTask(GoalConditionedBC):
         low_obs: bool = True,
         lr: float = 3e-4,
         lr_schedule: Literal["cosine", "constant"] = "cosine",
+        binary_actions: int = 0,
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         if init not in ("fresh", "previous"):

@@ -8,7 +8,7 @@ import lightning as L
 import torch
 from torch import Tensor, nn
 
-from ..nn.mlp import GaussianPolicy, feature_dim, gaussian_nll, goal_features
+from ..nn.mlp import GaussianPolicy, feature_dim, goal_features
 
 
 class GoalConditionedBC(L.LightningModule):
@@ -43,6 +43,7 @@ class GoalConditionedBC(L.LightningModule):
             hp.get("dropout", 0.1),
             hp.get("high_log_std"),
             hp.get("low_obs", True),
+            hp.get("binary_actions", 0),
         )
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
@@ -118,7 +119,8 @@ class HierarchicalNet(nn.Module):
     subgoal offset (subgoal − pos); the low policy sees [features(subgoal − pos), obs] (never
     the absolute goal), or with ``low_obs=False`` only features(subgoal − pos) (never the
     proprioceptive observation, so observation variants and absolute positions cannot reach
-    it), and predicts a Gaussian over the action. Acting re-plans every step.
+    it), and predicts a Gaussian over the action (Bernoulli over its first ``binary_actions``
+    entries: gamepad buttons). Acting re-plans every step.
     Kept apart from the LightningModule so that methods can hold several (one per task).
     """
 
@@ -132,6 +134,7 @@ class HierarchicalNet(nn.Module):
         dropout: float = 0.1,
         high_log_std: float | None = None,
         low_obs: bool = True,
+        binary_actions: int = 0,
     ):
         super().__init__()
         f = feature_dim(goal_dim)
@@ -140,7 +143,11 @@ class HierarchicalNet(nn.Module):
             f + obs_dim + 2 * goal_dim, high_hidden, goal_dim, dropout, fixed_log_std=high_log_std
         )
         self.low = GaussianPolicy(
-            low_input_dim(obs_dim, goal_dim, low_obs), low_hidden, action_dim, dropout
+            low_input_dim(obs_dim, goal_dim, low_obs),
+            low_hidden,
+            action_dim,
+            dropout,
+            binary=binary_actions,
         )
 
     @staticmethod
@@ -158,8 +165,8 @@ class HierarchicalNet(nn.Module):
 
     def act(self, observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
         offset, _ = self.high(self.high_input(observation, position, goal))
-        action, _ = self.low(self.low_input(observation, offset, self.low_obs))
-        return action
+        mean, _ = self.low(self.low_input(observation, offset, self.low_obs))
+        return self.low.act(mean)
 
 
 def low_input_dim(obs_dim: int, goal_dim: int, low_obs: bool) -> int:
@@ -172,13 +179,14 @@ def hierarchical_losses(
 ) -> dict:
     """HBC's losses for any pair of Gaussian policies called as ``policy(x) -> (mean, log_std)``:
     the high one on the subgoal offset, the low one on the action given the true subgoal
-    (``low_obs``: whether the low policy's input holds the observation)."""
+    (``low_obs``: whether the low policy's input holds the observation); each policy's own
+    :meth:`~hispo_pl.nn.mlp.GaussianPolicy.loss` (so button entries are Bernoulli)."""
     obs, pos = batch["observation"], batch["position"]
     offset = batch["subgoal"] - pos
     mean_h, log_std_h = high(HierarchicalNet.high_input(obs, pos, batch["goal"]))
     mean_l, log_std_l = low(HierarchicalNet.low_input(obs, offset, low_obs))
-    loss_high = gaussian_nll(mean_h, log_std_h, offset)
-    loss_low = gaussian_nll(mean_l, log_std_l, batch["action"])
+    loss_high = high.loss(mean_h, log_std_h, offset)
+    loss_low = low.loss(mean_l, log_std_l, batch["action"])
     return {"loss": loss_high + loss_low, "loss_high": loss_high, "loss_low": loss_low}
 
 
@@ -187,26 +195,36 @@ def flat_losses(policy: nn.Module, batch: dict[str, Tensor]) -> dict[str, Tensor
     the high policy's inputs: the NLL of the data's action."""
     x = HierarchicalNet.high_input(batch["observation"], batch["position"], batch["goal"])
     mean, log_std = policy(x)
-    return {"loss": gaussian_nll(mean, log_std, batch["action"])}
+    return {"loss": policy.loss(mean, log_std, batch["action"])}
 
 
 class FlatNet(nn.Module):
     """Flat goal-conditioned BC: the high policy's inputs, one Gaussian policy over actions."""
 
     def __init__(
-        self, obs_dim: int, action_dim: int, goal_dim: int = 2, hidden: int = 256, dropout=0.1
+        self,
+        obs_dim: int,
+        action_dim: int,
+        goal_dim: int = 2,
+        hidden: int = 256,
+        dropout=0.1,
+        binary_actions: int = 0,
     ):
         super().__init__()
         self.policy = GaussianPolicy(
-            feature_dim(goal_dim) + obs_dim + 2 * goal_dim, hidden, action_dim, dropout
+            feature_dim(goal_dim) + obs_dim + 2 * goal_dim,
+            hidden,
+            action_dim,
+            dropout,
+            binary=binary_actions,
         )
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         return flat_losses(self.policy, batch)
 
     def act(self, observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
-        action, _ = self.policy(HierarchicalNet.high_input(observation, position, goal))
-        return action
+        mean, _ = self.policy(HierarchicalNet.high_input(observation, position, goal))
+        return self.policy.act(mean)
 
 
 Backbone = Literal["hbc", "bc"]
@@ -222,14 +240,23 @@ def make_backbone(
     dropout: float = 0.1,
     high_log_std: float | None = None,
     low_obs: bool = True,
+    binary_actions: int = 0,
 ) -> HierarchicalNet | FlatNet:
     """One single-task network: hierarchical (``hbc``) or flat (``bc``, the low width)."""
     if backbone == "hbc":
         return HierarchicalNet(
-            obs_dim, action_dim, goal_dim, high_hidden, low_hidden, dropout, high_log_std, low_obs
+            obs_dim,
+            action_dim,
+            goal_dim,
+            high_hidden,
+            low_hidden,
+            dropout,
+            high_log_std,
+            low_obs,
+            binary_actions,
         )
     if backbone == "bc":
-        return FlatNet(obs_dim, action_dim, goal_dim, low_hidden, dropout)
+        return FlatNet(obs_dim, action_dim, goal_dim, low_hidden, dropout, binary_actions)
     raise ValueError(f"unknown backbone {backbone!r}; expected 'hbc' or 'bc'")
 
 
@@ -238,6 +265,8 @@ class HBC(GoalConditionedBC):
 
     ``high_log_std``: a fixed log-std makes the high policy's loss a squared error on the
     subgoal; ``None`` learns it. ``low_obs``: whether the low policy sees the observation.
+    ``binary_actions``: how many leading action entries are buttons (Bernoulli; linked from
+    the data: 6 for the video-game mazes, 0 for the mazes' continuous controls).
     """
 
     def __init__(
@@ -252,11 +281,20 @@ class HBC(GoalConditionedBC):
         lr_schedule: Literal["cosine", "constant"] = "cosine",
         high_log_std: float | None = None,
         low_obs: bool = True,
+        binary_actions: int = 0,
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
         self.net = HierarchicalNet(
-            obs_dim, action_dim, goal_dim, high_hidden, low_hidden, dropout, high_log_std, low_obs
+            obs_dim,
+            action_dim,
+            goal_dim,
+            high_hidden,
+            low_hidden,
+            dropout,
+            high_log_std,
+            low_obs,
+            binary_actions,
         )
 
     high_input = staticmethod(HierarchicalNet.high_input)
@@ -284,14 +322,17 @@ class BC(GoalConditionedBC):
         dropout: float = 0.1,
         lr: float = 3e-4,
         lr_schedule: Literal["cosine", "constant"] = "cosine",
+        binary_actions: int = 0,
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
-        self.net = FlatNet(obs_dim, action_dim, goal_dim, hidden, dropout)
+        self.net = FlatNet(obs_dim, action_dim, goal_dim, hidden, dropout, binary_actions)
 
     def reference_model(self) -> nn.Module:
         hp = self.hparams
-        return FlatNet(hp.obs_dim, hp.action_dim, hp.goal_dim, hp.hidden, hp.dropout)
+        return FlatNet(
+            hp.obs_dim, hp.action_dim, hp.goal_dim, hp.hidden, hp.dropout, hp.binary_actions
+        )
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         return self.net.losses(batch)

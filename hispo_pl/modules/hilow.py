@@ -65,6 +65,7 @@ class HiLOW(HiSPO):
         alpha_groups: int = 1,
         high_log_std: float | None = None,
         low_obs: bool = True,
+        binary_actions: int = 0,
     ):
         if rank < 1:
             raise ValueError(f"HiLOW: rank must be >= 1, got {rank}")
@@ -89,6 +90,7 @@ class HiLOW(HiSPO):
             alpha_groups,
             high_log_std,
             low_obs,
+            binary_actions,
         )
         for policy in self.policies.values():  # θ_1 as HiSPO draws it, then low-rank anchors
             low_rank_(policy.net, rank)

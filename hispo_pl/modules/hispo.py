@@ -16,7 +16,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ..nn import eval_mode
-from ..nn.mlp import GaussianPolicy, feature_dim, gaussian_nll
+from ..nn.mlp import GaussianPolicy, feature_dim
 from ..nn.subspace import AnchorInit, SubspaceResidualMLP, cosine_similarity_penalty
 from .hbc import HBC, GoalConditionedBC, low_input_dim
 
@@ -83,6 +83,7 @@ class HiSPO(GoalConditionedBC):
             squared error on the subgoal; ``None`` learns it.
         low_obs: as in :class:`HBC`: whether the low policy sees the observation (``False``:
             only the features of the relative subgoal).
+        binary_actions: as in :class:`HBC`: leading action entries that are buttons.
 
     Which policies a subspace holds is the class attribute ``subspace_policies`` (here each
     policy its own subspace; :class:`~hispo_pl.modules.cspo.CSPO` puts both in one): the
@@ -108,6 +109,7 @@ class HiSPO(GoalConditionedBC):
         alpha_groups: int = 1,
         high_log_std: float | None = None,
         low_obs: bool = True,
+        binary_actions: int = 0,
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
@@ -122,7 +124,11 @@ class HiSPO(GoalConditionedBC):
                     fixed_log_std=high_log_std,
                 ),
                 "low": SubspaceGaussianPolicy(
-                    low_input_dim(obs_dim, goal_dim, low_obs), low_hidden, action_dim, dropout
+                    low_input_dim(obs_dim, goal_dim, low_obs),
+                    low_hidden,
+                    action_dim,
+                    dropout,
+                    binary=binary_actions,
                 ),
             }
         )
@@ -225,10 +231,9 @@ class HiSPO(GoalConditionedBC):
                         mean, log_std = policy(x, part)  # [M, B, d]
                     mean, log_std = mean.float(), log_std.float()
                     if loss == "mse":
-                        part_loss = (mean - target).pow(2).sum(-1).mean(-1)
+                        part_loss = (policy.prediction(mean) - target).pow(2).sum(-1).mean(-1)
                     else:
-                        z = (target - mean) * torch.exp(-log_std)
-                        part_loss = (0.5 * z.pow(2) + log_std).sum(-1).mean(-1)
+                        part_loss = policy.nll(mean, log_std, target, normalised=False).mean(-1)
                     total = part_loss if total is None else total + part_loss
                 out.append(total)
         return torch.cat(out)
@@ -266,7 +271,7 @@ class HiSPO(GoalConditionedBC):
             for name in names:
                 x, target = self._io(name, batch)
                 mean, log_std = self._grouped_forward(name, x, alphas)
-                out[f"loss_{name}"] = gaussian_nll(mean, log_std, target)
+                out[f"loss_{name}"] = self.policies[name].loss(mean, log_std, target)
         out["loss"] = sum(out[f"loss_{name}"] for name in self.policies if f"loss_{name}" in out)
         if self.hparams.cosine_weight > 0:
             reg = sum(cosine_similarity_penalty(policy) for policy in self.policies.values())
@@ -296,7 +301,7 @@ class HiSPO(GoalConditionedBC):
             x, target = self._io(name, batch)
             with eval_mode(self.policies[name]) as policy:
                 mean, _ = policy(x, alpha)
-            out[name] = (mean - target).norm(dim=-1)
+            out[name] = (policy.act(mean) - target).norm(dim=-1)
         return out
 
     def alpha_for(self, subspace: str, task: int | None) -> Tensor:
@@ -315,11 +320,12 @@ class HiSPO(GoalConditionedBC):
             HBC.high_input(observation, position, goal),
             self.alpha_for(self.subspace_of("high"), task),
         )
-        action, _ = self.policies["low"](
+        low = self.policies["low"]
+        mean, _ = low(
             HBC.low_input(observation, offset, self.hparams.low_obs),
             self.alpha_for(self.subspace_of("low"), task),
         )
-        return action
+        return low.act(mean)
 
     @property
     def n_tasks(self) -> int:

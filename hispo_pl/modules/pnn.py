@@ -41,7 +41,8 @@ class PNN(GoalConditionedBC):
         obs_dim, action_dim, goal_dim: sizes (linked from the data by the CLI).
         backbone: ``hbc`` (columns for ``high`` and ``low``) or ``bc`` (columns for one flat
             ``policy``, ``low_hidden`` wide, on the high policy's inputs), for the BC-vs-HBC table.
-        high_hidden, low_hidden, dropout, high_log_std, low_obs: each column's, as :class:`HBC`.
+        high_hidden, low_hidden, dropout, high_log_std, low_obs, binary_actions: each
+            column's, as :class:`HBC`.
         lr, lr_schedule: Adam over the newest column and its laterals, restarted at every task.
 
     Example:
@@ -66,6 +67,7 @@ class PNN(GoalConditionedBC):
         low_obs: bool = True,
         lr: float = 3e-4,
         lr_schedule: Literal["cosine", "constant"] = "cosine",
+        binary_actions: int = 0,
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
@@ -79,12 +81,16 @@ class PNN(GoalConditionedBC):
                 fixed_log_std=high_log_std,
             )
             self.low = ProgressivePolicy(
-                low_input_dim(obs_dim, goal_dim, low_obs), low_hidden, action_dim, dropout
+                low_input_dim(obs_dim, goal_dim, low_obs),
+                low_hidden,
+                action_dim,
+                dropout,
+                binary=binary_actions,
             )
             self.policy_names: tuple[str, ...] = ("high", "low")
         elif backbone == "bc":
             self.policy = ProgressivePolicy(
-                f + obs_dim + 2 * goal_dim, low_hidden, action_dim, dropout
+                f + obs_dim + 2 * goal_dim, low_hidden, action_dim, dropout, binary=binary_actions
             )
             self.policy_names = ("policy",)
         else:
@@ -152,11 +158,10 @@ class PNN(GoalConditionedBC):
         column = self.column_for(self.task_index if task is None else task)
         x = HierarchicalNet.high_input(observation, position, goal)
         if self.hparams.backbone == "bc":
-            return self.policy(x, column)[0]
+            return self.policy.act(self.policy(x, column)[0])
         offset, _ = self.high(x, column)
         low_x = HierarchicalNet.low_input(observation, offset, self.hparams.low_obs)
-        action, _ = self.low(low_x, column)
-        return action
+        return self.low.act(self.low(low_x, column)[0])
 
     # --- checkpoints ----------------------------------------------------------------------
 

@@ -127,6 +127,7 @@ class RegularizedFineTuning(NetworkPerTask):
         low_obs: bool = True,
         lr: float = 3e-4,
         lr_schedule: Literal["cosine", "constant"] = "cosine",
+        binary_actions: int = 0,
     ):
         if penalty not in ("l2", "ewc"):
             raise ValueError(f"penalty must be 'l2' or 'ewc', got {penalty!r}")
@@ -144,6 +145,7 @@ class RegularizedFineTuning(NetworkPerTask):
             low_obs=low_obs,
             lr=lr,
             lr_schedule=lr_schedule,
+            binary_actions=binary_actions,
         )
         self.save_hyperparameters()
         self.remove_ignored_hparams(["init", "keep"])  # fixed here, not arguments

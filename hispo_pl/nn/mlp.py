@@ -1,10 +1,12 @@
-"""Building blocks of the hierarchical BC backbone: residual MLP, Gaussian head, goal features."""
+"""Building blocks of the hierarchical BC backbone: residual MLP, Gaussian head (with optional
+Bernoulli entries for gamepad buttons), goal features."""
 
 from __future__ import annotations
 
 import math
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 
@@ -84,7 +86,13 @@ def split_gaussian(raw: Tensor, out_dim: int, log_std_min: float, log_std_max: f
 class GaussianPolicy(nn.Module):
     """A diagonal Gaussian over ``out_dim`` values with a learned, softly clamped log-std, or a
     fixed one (``fixed_log_std``: the NLL is then a scaled squared error on the mean).
-    Subclasses swap the network through ``network`` (e.g. a subspace of networks)."""
+    Subclasses swap the network through ``network`` (e.g. a subspace of networks).
+
+    ``binary`` > 0 makes the first ``binary`` values Bernoulli (gamepad buttons): their
+    "mean" is a logit, their log-std is unused; :meth:`nll`, :meth:`act` and
+    :meth:`prediction` treat them as such. Keeping one output layout for both kinds lets every
+    network (subspaces, columns) serve either head unchanged.
+    """
 
     network: type[nn.Module] = ResidualMLP
 
@@ -97,9 +105,13 @@ class GaussianPolicy(nn.Module):
         log_std_min: float = -5.0,
         log_std_max: float = 1.0,
         fixed_log_std: float | None = None,
+        binary: int = 0,
     ):
         super().__init__()
+        if not 0 <= binary <= out_dim:
+            raise ValueError(f"binary must be in [0, {out_dim}], got {binary}")
         self.out_dim = out_dim
+        self.binary = binary
         self.log_std_min, self.log_std_max = log_std_min, log_std_max
         self.fixed_log_std = fixed_log_std
         heads = out_dim if fixed_log_std is not None else 2 * out_dim
@@ -114,9 +126,50 @@ class GaussianPolicy(nn.Module):
             return raw, torch.full_like(raw, self.fixed_log_std)
         return split_gaussian(raw, self.out_dim, self.log_std_min, self.log_std_max)
 
+    def nll(self, mean: Tensor, log_std: Tensor, target: Tensor, normalised: bool = True) -> Tensor:
+        """Per-sample negative log-likelihood of ``target`` (summed over values), shape
+        ``mean.shape[:-1]``: Bernoulli on the binary values, Gaussian on the rest
+        (``normalised=False`` leaves out the Gaussian's constant ½·log 2π per value)."""
+        b = self.binary
+        nll = gaussian_nll_per_sample(mean[..., b:], log_std[..., b:], target[..., b:], normalised)
+        if b:
+            bce = F.binary_cross_entropy_with_logits(
+                mean[..., :b], target[..., :b].expand_as(mean[..., :b]), reduction="none"
+            )
+            nll = nll + bce.sum(-1)
+        return nll
+
+    def loss(self, mean: Tensor, log_std: Tensor, target: Tensor) -> Tensor:
+        """Training loss: :meth:`nll` averaged over the batch."""
+        return self.nll(mean, log_std, target).mean()
+
+    def prediction(self, mean: Tensor) -> Tensor:
+        """The expected value: probabilities for binary values, the mean for the others (what
+        squared-error scoring compares with the data)."""
+        if not self.binary:
+            return mean
+        return torch.cat([torch.sigmoid(mean[..., : self.binary]), mean[..., self.binary :]], -1)
+
+    def act(self, mean: Tensor) -> Tensor:
+        """The deterministic action: a button is pressed (1) iff its probability exceeds 1/2."""
+        if not self.binary:
+            return mean
+        pressed = (mean[..., : self.binary] > 0).to(mean.dtype)
+        return torch.cat([pressed, mean[..., self.binary :]], -1)
+
+
+def gaussian_nll_per_sample(
+    mean: Tensor, log_std: Tensor, target: Tensor, normalised: bool = True
+) -> Tensor:
+    """Negative log-likelihood of each sample, summed over dimensions (shape without the last);
+    ``normalised=False`` drops the constant ½·log 2π per dimension."""
+    z = (target - mean) * torch.exp(-log_std)
+    nll = 0.5 * z.pow(2) + log_std
+    if normalised:
+        nll = nll + 0.5 * math.log(2 * math.pi)
+    return nll.sum(-1)
+
 
 def gaussian_nll(mean: Tensor, log_std: Tensor, target: Tensor) -> Tensor:
     """Mean over the batch of the negative log-likelihood, summed over dimensions."""
-    z = (target - mean) * torch.exp(-log_std)
-    nll = 0.5 * z.pow(2) + log_std + 0.5 * math.log(2 * math.pi)
-    return nll.sum(-1).mean()
+    return gaussian_nll_per_sample(mean, log_std, target).mean()
