@@ -6,6 +6,8 @@
 - ``hispo-pl data list``: the datasets stored locally.
 - ``hispo-pl evaluate --ckpt RUN/task_04.ckpt --task pointmaze-medium-IO [--json]``: roll out
   any checkpoint on any task.
+- ``hispo-pl render amazeville simpletown --out mazes.png [--dataset | --ckpt RUN/task_04.ckpt]``:
+  mazes from above with a dataset's or a policy's trajectories (``hispo_pl.render``).
 - ``hispo-pl benchmark --stream pointmaze-1 --methods all --seeds 3 --out results/pm1``: every
   method × seed as ``fit`` subprocesses, then the tables (``hispo_pl.benchmark``).
 """
@@ -49,7 +51,7 @@ class HispoCLI(LightningCLI):
             help="streams: results.json of a from-scratch run (SC1/SCN) of the same stream; its "
             "diagonal is R_scratch for FWT",
         )
-        for dim in ("obs_dim", "action_dim", "goal_dim"):
+        for dim in ("obs_dim", "action_dim", "goal_dim", "binary_actions"):
             parser.link_arguments(f"data.{dim}", f"model.init_args.{dim}", apply_on="instantiate")
 
     def before_instantiate_classes(self) -> None:
@@ -173,7 +175,12 @@ def data_main(argv: list[str]) -> int:
     sub = parser.add_subparsers(dest="cmd", required=True)
     gen = sub.add_parser("generate", help="collect expert episodes into a local Minari dataset")
     gen.add_argument("names", nargs="+", help=f"maze datasets: {', '.join(known_dataset_names())}")
-    gen.add_argument("--episodes", type=int, default=500)
+    gen.add_argument(
+        "--episodes",
+        type=int,
+        default=None,
+        help="episodes per maze (default: 500; the paper's 100 for amazeville, 250 for simpletown)",
+    )
     gen.add_argument("--seed", type=int, default=DEFAULT_SEED)
     gen.add_argument(
         "--noise",
@@ -228,34 +235,57 @@ def _quiet_known_warnings() -> None:
         warnings.filterwarnings("ignore", message=pattern)
 
 
-def evaluate_main(argv: list[str]) -> int:
-    """``hispo-pl evaluate``: any checkpoint on any task, seen or not."""
-    from .data.tasks import parse_task
-    from .evaluation import RolloutEvaluator, module_policy
-    from .modules.hbc import GoalConditionedBC
-
-    parser = argparse.ArgumentParser(
-        prog="hispo-pl evaluate", description="Roll out a checkpoint's policy on a task"
+def add_checkpoint_arguments(parser: argparse.ArgumentParser, required: bool) -> None:
+    """``--ckpt`` and ``--as-task``, shared by the commands that act with a checkpoint."""
+    parser.add_argument(
+        "--ckpt", required=required, help="a task_XX.ckpt of a stream run, or any fit"
     )
-    parser.add_argument("--ckpt", required=True, help="a task_XX.ckpt of a stream run, or any fit")
-    parser.add_argument("--task", required=True, help="task spec, e.g. pointmaze-medium-IO")
-    parser.add_argument("--episodes", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--as-task",
         type=int,
         default=None,
         help="act with the policy of the stream's task K (1-based); default: the last trained",
     )
+
+
+def load_checkpoint_policy(
+    parser: argparse.ArgumentParser, ckpt: str, as_task: int | None, tasks: list
+) -> tuple[GoalConditionedBC, int]:
+    """The module a checkpoint holds and the 0-based index of the task whose policy acts
+    (``as_task`` counts from 1; default the last trained). A missing file, or tasks whose
+    observations or actions the module was not built for, stop with a usage error rather
+    than a shape error deep in a rollout."""
+    if not Path(ckpt).exists():
+        parser.error(f"no checkpoint at {ckpt}")
+    module = GoalConditionedBC.from_checkpoint_file(ckpt)
+    for task in tasks:
+        for dim in ("obs_dim", "action_dim"):
+            built, needed = module.hparams.get(dim), getattr(task.env_family, dim)
+            if built is not None and built != needed:
+                parser.error(
+                    f"{ckpt} was trained with {dim} {built}, but {task} has {dim} {needed}"
+                )
+    return module, module.task_index if as_task is None else as_task - 1
+
+
+def evaluate_main(argv: list[str]) -> int:
+    """``hispo-pl evaluate``: any checkpoint on any task, seen or not."""
+    from .data.tasks import parse_task
+    from .evaluation import RolloutEvaluator, module_policy
+
+    parser = argparse.ArgumentParser(
+        prog="hispo-pl evaluate", description="Roll out a checkpoint's policy on a task"
+    )
+    add_checkpoint_arguments(parser, required=True)
+    parser.add_argument("--task", required=True, help="task spec, e.g. pointmaze-medium-IO")
+    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--num_threads", type=int, default=0)
     args = parser.parse_args(argv)
     set_num_threads(args.num_threads)
-    if not Path(args.ckpt).exists():
-        parser.error(f"no checkpoint at {args.ckpt}")
     task = parse_task(args.task)
-    module = GoalConditionedBC.from_checkpoint_file(args.ckpt)
-    as_task = module.task_index if args.as_task is None else args.as_task - 1
+    module, as_task = load_checkpoint_policy(parser, args.ckpt, args.as_task, [task])
     evaluator = RolloutEvaluator(task, args.episodes, args.seed)
     result = evaluator.run(module_policy(module, task=as_task), progress=not args.json)
     out = {
@@ -279,6 +309,81 @@ def evaluate_main(argv: list[str]) -> int:
     return 0
 
 
+def expand_render_tasks(names: list[str]) -> list:
+    """Task specs, where a bare family name (``amazeville``, ``simpletown``) stands for every
+    maze of that family, so one word draws a whole game."""
+    from .data.tasks import FAMILIES, parse_task
+
+    specs: list[str] = []
+    for name in names:
+        specs += [f"{name}-{maze}" for maze in FAMILIES[name].mazes] if name in FAMILIES else [name]
+    return [parse_task(spec) for spec in specs]
+
+
+def render_main(argv: list[str]) -> int:
+    """``hispo-pl render``: mazes from above, optionally with a dataset's or a policy's paths."""
+    from .data.datasets import DatasetNotFoundError
+    from .data.tasks import TaskSpecError
+
+    parser = argparse.ArgumentParser(
+        prog="hispo-pl render",
+        description="Draw mazes from above (PNG), with a dataset's or a policy's trajectories",
+    )
+    parser.add_argument(
+        "tasks",
+        nargs="+",
+        help="task specs (amazeville-HXOO, pointmaze-umaze), or a family name for all its "
+        "mazes (amazeville, simpletown)",
+    )
+    parser.add_argument("--out", required=True, help="image file to write, e.g. mazes.png")
+    parser.add_argument(
+        "--dataset", action="store_true", help="overlay episodes of each task's stored dataset"
+    )
+    add_checkpoint_arguments(parser, required=False)
+    parser.add_argument(
+        "--episodes", type=int, default=20, help="dataset episodes or rollouts per maze"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="rollouts' start and goal draws")
+    parser.add_argument("--columns", type=int, default=None, help="panels per row (default 4)")
+    parser.add_argument("--num_threads", type=int, default=0)
+    args = parser.parse_args(argv)
+    set_num_threads(args.num_threads)
+    if args.dataset and args.ckpt:
+        parser.error("--dataset and --ckpt overlay different paths: pick one")
+    if args.as_task is not None and not args.ckpt:
+        parser.error("--as-task picks a checkpoint's policy: it needs --ckpt")
+    if args.episodes <= 0:
+        parser.error("--episodes must be positive")
+    try:
+        from . import render
+    except ModuleNotFoundError as err:
+        if err.name != "matplotlib":
+            raise
+        print("hispo-pl render: needs matplotlib (pip install matplotlib)", file=sys.stderr)
+        return 2
+    try:
+        tasks = expand_render_tasks(args.tasks)
+        overlays = None
+        if args.dataset:
+            overlays = [render.Overlay(render.dataset_paths(t, args.episodes)) for t in tasks]
+        elif args.ckpt:
+            from .evaluation import module_policy
+
+            module, as_task = load_checkpoint_policy(parser, args.ckpt, args.as_task, tasks)
+            policy = module_policy(module, task=as_task)
+            overlays = [render.rollout_paths(t, policy, args.episodes, args.seed) for t in tasks]
+    except (TaskSpecError, DatasetNotFoundError) as err:
+        print(f"hispo-pl render: {err}", file=sys.stderr)
+        return 2
+    out = render.render_mazes(tasks, args.out, overlays, args.columns)
+    drawn = "" if overlays is None else f" with {sum(len(o.paths) for o in overlays)} paths"
+    if overlays is not None and args.ckpt:
+        wins = sum(int(o.successes.sum()) for o in overlays)
+        drawn += f" ({wins} reached their goal)"
+    print(f"[hispo-pl] {len(tasks)} maze(s){drawn}: {out}")
+    return 0
+
+
 def _flips(rate: float) -> str:
     """The share of episodes that ended with the agent flipped over, when there were any."""
     return f", {100 * rate:.0f}% flipped over" if rate > 0 else ""
@@ -291,6 +396,8 @@ def main(argv: list[str] | None = None) -> int:
         return data_main(argv[1:])
     if argv and argv[0] == "evaluate":
         return evaluate_main(argv[1:])
+    if argv and argv[0] == "render":
+        return render_main(argv[1:])
     if argv and argv[0] == "benchmark":
         from .benchmark import main as benchmark_main
 
