@@ -88,7 +88,21 @@ class HispoCLI(LightningCLI):
                     f"{cb.last['step']} steps ({self.fit_seconds:.0f} s with evaluations)"
                 )
                 if self.trainer.log_dir:
+                    write_task_result(self.trainer.log_dir, self.model, task, cb, self.fit_seconds)
                     print(f"[hispo-pl] TensorBoard logs: {self.trainer.log_dir}")
+
+
+def write_task_result(log_dir: str, model, task, callback, seconds: float) -> None:
+    """``result.json`` beside a single-task run's logs: its final evaluation, for tables
+    (``benchmarks/single_task_table.py``) without parsing TensorBoard files."""
+    result = {
+        "method": type(model).__name__,
+        "task": str(task),
+        "episodes": callback.episodes,
+        "seconds": round(seconds, 1),
+        **{k: float(v) for k, v in callback.last.items()},
+    }
+    (Path(log_dir) / "result.json").write_text(json.dumps(result, indent=2) + "\n")
 
 
 def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:

@@ -62,6 +62,11 @@ def test_fit_trains_evaluates_logs_and_prints_success(tiny_umaze, tmp_path, caps
     assert all(0.0 <= s.value <= 1.0 for s in success)
     checkpoints = list(tmp_path.rglob("*.ckpt"))
     assert checkpoints, "no checkpoint written"
+    (result_file,) = tmp_path.rglob("result.json")
+    result = json.loads(result_file.read_text())
+    assert result["method"] == "HBC" and result["task"] == "pointmaze-umaze-N[6]"
+    assert result["step"] == 40 and result["episodes"] == 4
+    assert result["success"] == pytest.approx(success[-1].value)
 
     # the checkpoint alone rebuilds the policy; evaluate it on a task it never saw
     capsys.readouterr()
