@@ -213,10 +213,16 @@ def collect_episode(env, expert, rng: np.random.Generator, seed: int, noise: flo
         actions.append(action)
         rewards.append(reward)
         success.append(reached)
+    return _episode_arrays(record, actions, rewards, success, flipped)
+
+
+def _episode_arrays(record: dict, actions, rewards, reached, flipped: bool) -> dict:
+    """One collected episode as the arrays staged to disk (observation keys, actions, rewards,
+    per-step goal reached, whether it was cut at a flip)."""
     out = {k: np.asarray(v) for k, v in record.items()}
     out["actions"] = np.asarray(actions, dtype=np.float32)
     out["rewards"] = np.asarray(rewards, dtype=np.float64)
-    out["reached"] = np.asarray(success, dtype=bool)
+    out["reached"] = np.asarray(reached, dtype=bool)
     out["flipped"] = np.asarray(flipped)
     return out
 
@@ -241,12 +247,7 @@ def collect_game_episode(env, expert, rng: np.random.Generator, seed: int, steps
         success.append(bool(info["success"]))
         if terminated or truncated:
             break
-    out = {k: np.asarray(v) for k, v in record.items()}
-    out["actions"] = np.asarray(actions, dtype=np.float32)
-    out["rewards"] = np.asarray(rewards, dtype=np.float64)
-    out["reached"] = np.asarray(success, dtype=bool)
-    out["flipped"] = np.asarray(False)
-    return out
+    return _episode_arrays(record, actions, rewards, success, flipped=False)
 
 
 def make_expert(name: str, env, expert_weights: str | None = None):

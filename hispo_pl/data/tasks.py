@@ -8,7 +8,7 @@ and episodes to 500. A stream is a named list of task specs (``pointmaze-1``).
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -48,6 +48,27 @@ class Family:
     binary_actions: int = 0  # leading action entries that are buttons (Bernoulli in the policy)
 
 
+def _game_family(
+    name: str, title: str, mazes: tuple[str, ...], defaults: MazeDefaults, episodes: int
+) -> Family:
+    """A family of the paper's Godot mazes rebuilt on MuJoCo (:mod:`hispo_pl.envs.videogame`):
+    the same agent and gamepad in every maze (6 buttons + a rotation target; observation 127
+    values besides position and goal); mazes differ by topology only, so the gamepad has no
+    variant but N. ``defaults`` holds the step limit and HER settings shared by its mazes."""
+    return Family(
+        name=name,
+        env_id=f"hispo_pl/{title}_{{}}-v0",
+        obs_dim=127,
+        action_dim=8,
+        goal_dim=3,
+        action_group=1,
+        mazes={m: replace(defaults, env_name=m) for m in mazes},
+        variants=("N",),
+        default_episodes=episodes,
+        binary_actions=6,
+    )
+
+
 FAMILIES: dict[str, Family] = {
     "pointmaze": Family(
         name="pointmaze",
@@ -76,37 +97,19 @@ FAMILIES: dict[str, Family] = {
         },
         env_kwargs={"include_cfrc_ext_in_observation": False},
     ),
-    # the paper's Godot mazes rebuilt on MuJoCo (hispo_pl.envs.videogame); maze names are the
-    # paper's (HXOO, OXO, ...); the gamepad has no meaningful inversion or permutation
-    "amazeville": Family(
-        name="amazeville",
-        env_id="hispo_pl/AmazeVille_{}-v0",
-        obs_dim=127,
-        action_dim=8,
-        goal_dim=3,
-        action_group=1,
-        mazes={
-            m: MazeDefaults(m, 300, waysteps=10, her_temperature=100.0)
-            for m in ("HOOO", "HOOX", "HXOO", "HXOX", "LOOO", "LOOX", "LXOO", "LXOX")
-        },
-        variants=("N",),
-        default_episodes=100,
-        binary_actions=6,
+    "amazeville": _game_family(
+        "amazeville",
+        "AmazeVille",
+        ("HOOO", "HOOX", "HXOO", "HXOX", "LOOO", "LOOX", "LXOO", "LXOX"),
+        MazeDefaults("", 300, waysteps=10, her_temperature=100.0),
+        episodes=100,
     ),
-    "simpletown": Family(
-        name="simpletown",
-        env_id="hispo_pl/SimpleTown_{}-v0",
-        obs_dim=127,
-        action_dim=8,
-        goal_dim=3,
-        action_group=1,
-        mazes={
-            m: MazeDefaults(m, 100, waysteps=3, her_temperature=15.0)
-            for m in ("BASE", "OOO", "OOX", "OXO", "XOO", "XXO", "XOX", "OXX")
-        },
-        variants=("N",),
-        default_episodes=250,
-        binary_actions=6,
+    "simpletown": _game_family(
+        "simpletown",
+        "SimpleTown",
+        ("BASE", "OOO", "OOX", "OXO", "XOO", "XXO", "XOX", "OXX"),
+        MazeDefaults("", 100, waysteps=3, her_temperature=15.0),
+        episodes=250,
     ),
 }
 

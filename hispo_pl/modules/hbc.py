@@ -285,17 +285,7 @@ class HBC(GoalConditionedBC):
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
-        self.net = HierarchicalNet(
-            obs_dim,
-            action_dim,
-            goal_dim,
-            high_hidden,
-            low_hidden,
-            dropout,
-            high_log_std,
-            low_obs,
-            binary_actions,
-        )
+        self.net = self.reference_model()  # the single-task HBC its hyperparameters describe
 
     high_input = staticmethod(HierarchicalNet.high_input)
     low_input = staticmethod(HierarchicalNet.low_input)
@@ -326,7 +316,7 @@ class BC(GoalConditionedBC):
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
-        self.net = FlatNet(obs_dim, action_dim, goal_dim, hidden, dropout, binary_actions)
+        self.net = self.reference_model()
 
     def reference_model(self) -> nn.Module:
         hp = self.hparams
