@@ -1,0 +1,111 @@
+"""Why a maze change keeps its low anchor: how well a low policy trained on one PointMaze
+maze imitates the expert on another, by what it sees and by its subgoal horizon.
+
+For each (input, waysteps) setting a low policy (the HBC low network: features of the true
+subgoal offset [+ observation] → action) is trained from scratch on the first task and one
+on the second, for the same steps; both are then scored as the pruning search scores a low
+anchor (deterministic mean, squared error summed over the action, 16 fixed batches of 1,024)
+on the second task's data, and the ratio old / own is what SubspacePruning compares with
+1 + ε. Inputs: ``position`` = gymnasium's full vector (x, y, vx, vy), ``velocity`` = what
+policies see since x, y were dropped (``Family.position_features``).
+
+    python benchmarks/low_transfer_study.py --steps 3000 \
+        --first "pointmaze-umaze-N[500]" --second "pointmaze-large-N[500]"
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import torch
+
+from hispo_pl.data.datasets import load_episodes
+from hispo_pl.data.sampler import HERConfig, HERSampler
+from hispo_pl.data.tasks import parse_task
+from hispo_pl.nn import eval_mode
+from hispo_pl.nn.mlp import GaussianPolicy, goal_features
+
+INPUTS = ("position", "velocity")
+
+
+def low_input(batch: dict[str, torch.Tensor], seen: str) -> torch.Tensor:
+    """The low policy's input from a batch of the env's full observation vector."""
+    obs = batch["observation"] if seen == "position" else batch["observation"][:, 2:]
+    return torch.cat([goal_features(batch["subgoal"] - batch["position"]), obs], -1)
+
+
+def sampler(task: str, waysteps: int | None, seed: int = 0) -> HERSampler:
+    """HER batches over the dataset's own (x, y, vx, vy) observations (variant N only)."""
+    t = parse_task(task)
+    if t.variant != "N":
+        raise SystemExit(f"{task}: the study needs the normal variant")
+    cfg = HERConfig(
+        waysteps=waysteps or t.defaults.waysteps, temperature=t.defaults.her_temperature
+    )
+    return HERSampler(load_episodes(t), cfg, batch_size=1024, seed=seed)
+
+
+def train_low(task: str, seen: str, waysteps: int | None, steps: int) -> GaussianPolicy:
+    """A low policy trained from scratch like HBC's (Adam 1e-3, cosine over ``steps``)."""
+    torch.manual_seed(0)
+    data = sampler(task, waysteps)
+    policy = GaussianPolicy(low_input(data.sample(8), seen).shape[-1], 256, 2)
+    opt = torch.optim.Adam(policy.parameters(), lr=1e-3)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
+    for _ in range(steps):
+        batch = data.sample()
+        mean, log_std = policy(low_input(batch, seen))
+        loss = policy.loss(mean, log_std, batch["action"])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        schedule.step()
+    return policy
+
+
+@torch.no_grad()
+def score(policy: GaussianPolicy, batches: list[dict], seen: str) -> float:
+    """Mean squared error of the deterministic action over ``batches``."""
+    with eval_mode(policy):
+        errors = [
+            (policy(low_input(b, seen))[0] - b["action"]).pow(2).sum(-1).mean() for b in batches
+        ]
+    return float(torch.stack(errors).mean())
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--first", default="pointmaze-umaze-N[500]")
+    parser.add_argument("--second", default="pointmaze-large-N[500]")
+    parser.add_argument("--steps", type=int, default=3000, help="gradient steps per policy")
+    parser.add_argument(
+        "--waysteps",
+        type=int,
+        nargs="+",
+        default=[0, 25],
+        help="subgoal horizons to compare; 0 = each maze's own (the paper's)",
+    )
+    parser.add_argument("--num_threads", type=int, default=1)
+    args = parser.parse_args()
+    torch.set_num_threads(args.num_threads)
+
+    print("| low input | waysteps | old on second | own on second | old / own | seconds |")
+    print("|---|---|---:|---:|---:|---:|")
+    for seen in INPUTS:
+        for waysteps in args.waysteps:
+            start = time.perf_counter()
+            horizon = waysteps or None
+            old = train_low(args.first, seen, horizon, args.steps)
+            own = train_low(args.second, seen, horizon, args.steps)
+            batches = [sampler(args.second, horizon, seed=100).sample() for _ in range(16)]
+            l_old, l_own = score(old, batches, seen), score(own, batches, seen)
+            print(
+                f"| {seen} | {waysteps or 'per maze'} | {l_old:.3f} | {l_own:.3f} | "
+                f"{l_old / l_own:.2f} | {time.perf_counter() - start:.0f} |",
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()
