@@ -14,7 +14,7 @@ from hispo_pl.cli import main
 from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.data.datasets import collect_episode, episodes_to_arrays
 from hispo_pl.data.tasks import VARIANTS, parse_task, transform_action, transform_observation
-from hispo_pl.envs import agent_flipped, make_base_env, make_env
+from hispo_pl.envs import agent_flipped, make_env
 from hispo_pl.envs.experts import (
     ANT_ACTION_SCALE,
     ANT_EXPERT_ENV,
@@ -159,11 +159,11 @@ def test_collection_cuts_an_episode_at_the_flip(tmp_path):
                 _turn_over(self.env)
             return super().act(obs)
 
-    env = make_base_env("antmaze-umaze", continuing_task=True, reset_target=True)
+    env = make_env("antmaze-umaze", continuing_task=True, reset_target=True)
     rng = np.random.default_rng(0)
     ep = collect_episode(env, TurnsOverAt(env, 12), rng, seed=0, noise=0.04, steps=50)
     assert len(ep["actions"]) == 11 and len(ep["observation"]) == 12 and bool(ep["flipped"])
-    ball = make_base_env("pointmaze-umaze", continuing_task=True, reset_target=True)
+    ball = make_env("pointmaze-umaze", continuing_task=True, reset_target=True)
     full = collect_episode(ball, PointMazeExpert(ball), rng, seed=0, noise=0.1, steps=50)
     assert len(full["actions"]) == 50 and not bool(full["flipped"])
 

@@ -8,7 +8,7 @@ import torch
 
 from hispo_pl import evaluation
 from hispo_pl.data.tasks import parse_task, transform_action
-from hispo_pl.envs import make_base_env
+from hispo_pl.envs import make_env
 from hispo_pl.envs.experts import PointMazeExpert
 from hispo_pl.envs.mazes import maze_array
 from hispo_pl.evaluation import RolloutEvaluator, RolloutResult, start_goal_cells
@@ -16,31 +16,28 @@ from hispo_pl.evaluation import RolloutEvaluator, RolloutResult, start_goal_cell
 
 @pytest.fixture(scope="module")
 def umaze_grid():
-    env = make_base_env("pointmaze-umaze")
+    env = make_env("pointmaze-umaze")
     yield maze_array(env)
     env.close()
 
 
 @pytest.fixture(scope="module")
 def expert():
-    env = make_base_env("pointmaze-umaze")
+    env = make_env("pointmaze-umaze")
     yield PointMazeExpert(env)
     env.close()
 
 
 def expert_policy(expert, task="pointmaze-umaze", observe=lambda o: o):
     """The scripted expert as a batched PolicyFn, acting in ``task``'s variant: ``observe``
-    maps the variant's observation features (the velocity) back to the base ones, and the
-    position is put back in front, giving the env's own (x, y, vx, vy)."""
+    maps the variant's observation features back to the base ones."""
     task = parse_task(task)
 
     def policy(observation, position, goal):
         actions = []
-        rows = zip(observation.numpy(), position.numpy(), goal.numpy(), strict=True)
-        for o, p, g in rows:
+        for o, g in zip(observation.numpy(), goal.numpy(), strict=True):
             expert.reset()  # one expert serves every row: plan afresh from each row's own cell
-            base = np.concatenate([p, observe(o)]).astype(np.float64)
-            a = expert.act({"observation": base, "desired_goal": g})
+            a = expert.act({"observation": observe(o.astype(np.float64)), "desired_goal": g})
             actions.append(transform_action(task, a))
         return torch.as_tensor(np.stack(actions), dtype=torch.float32)
 
@@ -53,7 +50,7 @@ def zero_policy(observation, position, goal):
 
 def greedy_policy(observation, position, goal):
     """Heads straight for the goal, ignoring walls: succeeds only sometimes."""
-    return torch.clamp(3.0 * (goal - position) - 0.5 * observation, -1.0, 1.0)  # obs: velocity
+    return torch.clamp(3.0 * (goal - position) - 0.5 * observation[:, 2:4], -1.0, 1.0)
 
 
 # --- start_goal_cells --------------------------------------------------------------------
@@ -159,9 +156,9 @@ def test_policy_is_called_on_active_episodes_only(expert):
 
     def recording(observation, position, goal):
         assert observation.dtype == position.dtype == goal.dtype == torch.float32
-        # the observation is the velocity; the position comes separately (the expert, fed
-        # both, reaches every goal only if the position is the ball's: asserted below)
-        assert observation.shape[1] == position.shape[1] == goal.shape[1] == 2
+        assert observation.shape[1] == 4 and position.shape[1] == goal.shape[1] == 2
+        # the position handed to the policy is the ball's, the first two observation features
+        assert torch.equal(position, observation[:, :2])
         seen.append(len(observation))
         return base(observation, position, goal)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hispo_pl.envs import make_base_env
+from hispo_pl.envs import make_env
 from hispo_pl.envs.experts import PointMazeExpert
 from hispo_pl.envs.mazes import bfs_next_cell, cell_to_xy, free_cells, maze_array, xy_to_cell
 from hispo_pl.evaluation import start_goal_cells
@@ -27,7 +27,7 @@ def run_expert(env, expert, start, goal, noise=0.0, seed=0):
 
 @pytest.mark.parametrize("maze", ["umaze", "medium", "large"])
 def test_expert_reaches_random_goals_with_noise(maze):
-    env = make_base_env(f"pointmaze-{maze}")
+    env = make_env(f"pointmaze-{maze}")
     expert = PointMazeExpert(env)
     pairs = start_goal_cells(maze_array(env), 8, seed=3)
     results = [
@@ -37,7 +37,7 @@ def test_expert_reaches_random_goals_with_noise(maze):
 
 
 def test_bfs_next_cell_follows_a_shortest_path():
-    grid = maze_array(make_base_env("pointmaze-medium"))
+    grid = maze_array(make_env("pointmaze-medium"))
     goal = (6, 6)
     nxt = bfs_next_cell(grid, goal)
     for cell in map(tuple, free_cells(grid)):
@@ -55,7 +55,7 @@ def test_bfs_next_cell_follows_a_shortest_path():
 def test_expert_turns_near_cell_centres():
     """Without noise, each change of cell happens close to the corridor's centre line: the
     expert reaches a waypoint (within its switch radius) before heading for the next one."""
-    env = make_base_env("pointmaze-large")
+    env = make_env("pointmaze-large")
     expert = PointMazeExpert(env)
     ok, path = run_expert(env, expert, np.array([1, 1]), np.array([7, 10]))
     assert ok
@@ -70,7 +70,7 @@ def test_expert_turns_near_cell_centres():
 
 
 def test_expert_replans_when_the_goal_changes():
-    env = make_base_env("pointmaze-umaze", continuing_task=True, reset_target=True)
+    env = make_env("pointmaze-umaze", continuing_task=True, reset_target=True)
     expert = PointMazeExpert(env)
     obs, _ = env.reset(
         seed=0, options={"reset_cell": np.array([1, 1]), "goal_cell": np.array([3, 1])}

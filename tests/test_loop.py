@@ -24,7 +24,7 @@ from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.hispo import SUBSPACES, HiSPO
 
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-IA[3]", "pointmaze-umaze-PO[3]"]
-SIZES = {"obs_dim": 2, "action_dim": 2, "high_hidden": 8, "low_hidden": 16}
+SIZES = {"obs_dim": 4, "action_dim": 2, "high_hidden": 8, "low_hidden": 16}
 SEED = 0
 COMPARED = ("stream", "R", "PER", "BWT", "stored_bytes", "anchors", "alphas", "table")
 

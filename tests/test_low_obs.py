@@ -65,7 +65,7 @@ def test_hispo_stream_without_observation_in_the_low_policy(tiny_umaze, tmp_path
     module = GoalConditionedBC.from_checkpoint_file(str(run_dir / "task_02.ckpt"))
     assert isinstance(module, HiSPO) and module.hparams.low_obs is False
     module.eval()
-    obs = torch.randn(5, 2)  # PointMaze's velocity
+    obs = torch.randn(5, 4)
     pos, goal = torch.zeros(5, 2), torch.ones(5, 2)
     offset, _ = module.policies["high"](HBC.high_input(obs, pos, goal), module.alpha_for("high", 1))
     low_x = HBC.low_input(obs, offset, with_obs=False)

@@ -190,7 +190,7 @@ def _tiny_checkpoint(path: Path) -> Path:
     from hispo_pl.modules.hbc import HBC
 
     trainer = L.Trainer(logger=False, enable_checkpointing=False, accelerator="cpu")
-    trainer.strategy.connect(HBC(obs_dim=2, action_dim=2, high_hidden=8, low_hidden=16))
+    trainer.strategy.connect(HBC(obs_dim=4, action_dim=2, high_hidden=8, low_hidden=16))
     trainer.save_checkpoint(path)
     return path
 
@@ -225,10 +225,10 @@ def test_cli_names_the_command_for_a_missing_dataset(monkeypatch, tmp_path, caps
 
 
 def test_cli_rejects_a_checkpoint_for_another_agent(tmp_path, capsys):
-    ckpt = _tiny_checkpoint(tmp_path / "m.ckpt")  # a PointMaze policy: 2 observation values
+    ckpt = _tiny_checkpoint(tmp_path / "m.ckpt")  # a PointMaze policy: 4 observation values
     with pytest.raises(SystemExit) as done:
         main(["render", "amazeville-HOOO", "--ckpt", str(ckpt), "--out", str(tmp_path / "x.png")])
-    assert done.value.code == 2 and "obs_dim 2" in capsys.readouterr().err
+    assert done.value.code == 2 and "obs_dim 4" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(

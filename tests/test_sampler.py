@@ -8,7 +8,7 @@ import torch
 
 from hispo_pl.data.datasets import EpisodeArrays, goal_segment_ends
 from hispo_pl.data.sampler import HERConfig, HERSampler, relabel_indices
-from hispo_pl.data.tasks import parse_task
+from hispo_pl.data.tasks import parse_task, transform_observation
 
 LENGTHS = [2, 7, 60, 400, 3, 150]  # rows per episode (T + 1)
 
@@ -223,20 +223,17 @@ def test_sampler_is_deterministic_per_seed():
 
 
 def test_sampler_on_variant_data(tiny_umaze):
-    """On real data in the PO variant, the observation is the env's velocity permuted, while
-    positions and goals are still maze coordinates from the sampled row's own episode."""
+    """On real data in the PO variant, observations are permuted but positions and goals are
+    still maze coordinates from the sampled row's own episode."""
     task = parse_task("pointmaze-umaze-PO")
     data = tiny_umaze.for_task(task)
     batch = HERSampler(data, HERConfig(waysteps=50, temperature=100.0), batch_size=256).sample()
-    obs, pos = batch["observation"].numpy(), batch["position"].numpy()
-    assert obs.shape == (256, 2)
-    rows = zip(obs, pos, batch["goal"].numpy(), strict=True)
-    for row_obs, row_pos, goal in rows:
-        match = (data.observations == row_obs).all(axis=1) & (data.positions == row_pos).all(axis=1)
-        i = int(np.flatnonzero(match)[0])
-        raw = tiny_umaze.observations[i]  # the env's own (x, y, vx, vy)
-        np.testing.assert_array_equal(raw[:2], row_pos)
-        np.testing.assert_array_equal(np.roll(raw[2:], 1), row_obs)  # PO: (vy, vx)
+    obs = batch["observation"].numpy()
+    # undo PO (a cyclic shift by one): the first two base features are the position
+    np.testing.assert_array_equal(np.roll(obs, -1, axis=-1)[:, :2], batch["position"].numpy())
+    np.testing.assert_array_equal(transform_observation(task, np.roll(obs, -1, axis=-1)), obs)
+    for row_obs, goal in zip(obs, batch["goal"].numpy(), strict=True):
+        i = int(np.flatnonzero((data.observations == row_obs).all(axis=1))[0])
         episode = slice(i, int(data.episode_end[i]) + 1)
         assert (data.positions[episode] == goal).all(axis=1).any()
 

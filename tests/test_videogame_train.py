@@ -73,7 +73,7 @@ def test_hbc_fit_and_evaluate_with_buttons(town_data, tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["evaluate", "--ckpt", str(ckpt), "--task", "pointmaze-umaze"])
     assert exit_info.value.code == 2
-    assert "trained with obs_dim 127, but pointmaze-umaze-N[500] has obs_dim 2" in (
+    assert "trained with obs_dim 127, but pointmaze-umaze-N[500] has obs_dim 4" in (
         capsys.readouterr().err
     )
 

@@ -287,7 +287,7 @@ def generate_dataset(
     import minari
     from minari.data_collector import EpisodeBuffer
 
-    from ..envs import make_base_env
+    from ..envs import make_env
 
     task = parse_task(name)
     name = task.dataset_name
@@ -299,8 +299,7 @@ def generate_dataset(
     steps = task.defaults.max_episode_steps
     episodes = episodes or default_episodes(task)
     game = task.family in GAME_FAMILIES
-    collecting = {} if game else {"continuing_task": True, "reset_target": True}
-    env = make_base_env(name, **collecting)
+    env = make_env(name) if game else make_env(name, continuing_task=True, reset_target=True)
     expert = make_expert(name, env, expert_weights)
     noise = expert.action_noise if noise is None else noise
     staging = dataset_path("") / ".staging" / f"{name}-seed{seed}-noise{noise}"
@@ -375,7 +374,7 @@ def generate_dataset(
         dataset_id=dataset_id,
         buffer=buffers,
         env=env.spec,
-        eval_env=make_base_env(name).spec,
+        eval_env=make_env(name).spec,
         author_email="hispo-pl@users.noreply.github.com",
         algorithm_name=expert.name,
         author="hispo-pl",

@@ -37,7 +37,7 @@ class Family:
 
     name: str
     env_id: str  # format string over the maze's env_name
-    obs_dim: int  # observation features the agent sees (after dropping position_features)
+    obs_dim: int
     action_dim: int
     goal_dim: int
     action_group: int  # entries per actuator group: PA shifts the actions by this much
@@ -46,11 +46,6 @@ class Family:
     variants: tuple[str, ...] = tuple(VARIANTS)  # the variants that make sense for this agent
     default_episodes: int = 500  # dataset episodes per maze when a spec names none
     binary_actions: int = 0  # leading action entries that are buttons (Bernoulli in the policy)
-    # Leading entries of the env's observation vector that repeat the agent's position (the
-    # achieved goal). Policies get the position separately, so these are dropped from what
-    # they see as the observation: a low policy that sees absolute coordinates is tied to one
-    # maze's coordinate range (README, "Why a maze change keeps its low anchor").
-    position_features: int = 0
 
 
 def _game_family(
@@ -78,7 +73,7 @@ FAMILIES: dict[str, Family] = {
     "pointmaze": Family(
         name="pointmaze",
         env_id="PointMaze_{}-v3",
-        obs_dim=2,  # the env's (x, y, vx, vy) without x, y
+        obs_dim=4,
         action_dim=2,
         goal_dim=2,
         action_group=1,
@@ -87,7 +82,6 @@ FAMILIES: dict[str, Family] = {
             "medium": MazeDefaults("Medium", 600, waysteps=25, her_temperature=75.0),
             "large": MazeDefaults("Large", 800, waysteps=25, her_temperature=100.0),
         },
-        position_features=2,
     ),
     "antmaze": Family(
         name="antmaze",
@@ -241,9 +235,7 @@ def parse_stream(stream: str | list[str]) -> list[Task]:
 
 
 def transform_observation(task: Task, obs: np.ndarray) -> np.ndarray:
-    """The observation features the agent sees in ``task`` given the env's vector (last axis):
-    the family's position features dropped, then the variant applied to the rest."""
-    obs = obs[..., task.env_family.position_features :]
+    """The observation features the agent sees in ``task`` given the normal ones (last axis)."""
     if task.variant == "IO":
         return -obs
     if task.variant == "PO":

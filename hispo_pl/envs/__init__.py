@@ -31,19 +31,7 @@ def _register() -> None:
 
 
 def make_env(task: str | Task, *, continuing_task: bool = False, **kwargs) -> gym.Env:
-    """Build the gymnasium env of ``task`` as a policy sees it: the observation vector as
-    :func:`~hispo_pl.data.tasks.transform_observation` gives it and actions in the variant's
-    convention (a :class:`VariantWrapper` over :func:`make_base_env`, where needed)."""
-    task = parse_task(task)
-    env = make_base_env(task, continuing_task=continuing_task, **kwargs)
-    if task.variant != "N" or task.env_family.position_features:
-        env = VariantWrapper(env, task)
-    return env
-
-
-def make_base_env(task: str | Task, *, continuing_task: bool = False, **kwargs) -> gym.Env:
-    """Build the env of ``task``'s maze as gymnasium defines it (what experts drive and
-    datasets store; no variant, the full observation vector).
+    """Build the gymnasium env of ``task`` (variant applied by a wrapper).
 
     ``continuing_task=False`` (our default, unlike gymnasium-robotics') ends an episode on
     success, as evaluation needs; data collection passes ``True``. Extra kwargs go to
@@ -58,6 +46,8 @@ def make_base_env(task: str | Task, *, continuing_task: bool = False, **kwargs) 
     tmp_xml = getattr(env.unwrapped, "tmp_xml_file_path", None)
     if tmp_xml and os.path.exists(tmp_xml):
         os.remove(tmp_xml)
+    if task.variant != "N":
+        env = VariantWrapper(env, task)
     return env
 
 
@@ -72,4 +62,4 @@ def agent_flipped(env: gym.Env) -> bool:
     return bool(1.0 - 2.0 * (qx * qx + qy * qy) < 0.0)
 
 
-__all__ = ["make_env", "make_base_env", "agent_flipped", "VariantWrapper"]
+__all__ = ["make_env", "agent_flipped", "VariantWrapper"]
