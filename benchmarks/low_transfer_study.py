@@ -6,8 +6,8 @@ subgoal offset [+ observation] → action) is trained from scratch on the first 
 on the second, for the same steps; both are then scored as the pruning search scores a low
 anchor (deterministic mean, squared error summed over the action, 16 fixed batches of 1,024)
 on the second task's data, and the ratio old / own is what SubspacePruning compares with
-1 + ε. Inputs: ``position`` = gymnasium's full vector (x, y, vx, vy), ``velocity`` = what
-policies see since x, y were dropped (``Family.position_features``).
+1 + ε. Inputs: ``position`` = gymnasium's full vector (x, y, vx, vy), what our policies see;
+``velocity`` = (vx, vy) only, a low policy that cannot tell where in the maze it is.
 
     python benchmarks/low_transfer_study.py --steps 3000 \
         --first "pointmaze-umaze-N[500]" --second "pointmaze-large-N[500]"
