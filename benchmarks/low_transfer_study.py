@@ -20,8 +20,9 @@ import time
 
 import torch
 
+from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.data.datasets import load_episodes
-from hispo_pl.data.sampler import HERConfig, HERSampler
+from hispo_pl.data.sampler import HERSampler
 from hispo_pl.data.tasks import parse_task
 from hispo_pl.nn import eval_mode
 from hispo_pl.nn.mlp import GaussianPolicy, goal_features
@@ -40,9 +41,7 @@ def sampler(task: str, waysteps: int | None, seed: int = 0) -> HERSampler:
     t = parse_task(task)
     if t.variant != "N":
         raise SystemExit(f"{task}: the study needs the normal variant")
-    cfg = HERConfig(
-        waysteps=waysteps or t.defaults.waysteps, temperature=t.defaults.her_temperature
-    )
+    cfg = TaskDataModule(task=task, waysteps=waysteps).her_config(t)  # training's relabelling
     return HERSampler(load_episodes(t), cfg, batch_size=1024, seed=seed)
 
 
