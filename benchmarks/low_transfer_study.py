@@ -51,6 +51,12 @@ def sampler(task: str, waysteps: int | None, seed: int = 0) -> HERSampler:
     return HERSampler(load_episodes(t), cfg, batch_size=1024, seed=seed)
 
 
+def scoring_batches(task: str, waysteps: int | None) -> list[dict]:
+    """The 16 fixed batches a low policy is scored on (their own seed, apart from training's)."""
+    data = sampler(task, waysteps, seed=100)
+    return [data.sample() for _ in range(16)]
+
+
 def train_low(
     task: str, seen: str, waysteps: int | None, steps: int, start: GaussianPolicy | None = None
 ) -> GaussianPolicy:
@@ -113,7 +119,7 @@ def main() -> None:
             horizon = waysteps or None
             old = train_low(args.first, seen, horizon, args.steps)
             own = train_low(args.second, seen, horizon, args.steps)
-            batches = [sampler(args.second, horizon, seed=100).sample() for _ in range(16)]
+            batches = scoring_batches(args.second, horizon)
             l_old, l_own = score(old, batches, seen), score(own, batches, seen)
             print(
                 f"| {seen} | {waysteps or 'per maze'} | {l_old:.3f} | {l_own:.3f} | "
@@ -123,7 +129,7 @@ def main() -> None:
             if args.control:
                 start = time.perf_counter()
                 more = train_low(args.first, seen, horizon, args.steps, start=old)
-                batches = [sampler(args.first, horizon, seed=100).sample() for _ in range(16)]
+                batches = scoring_batches(args.first, horizon)
                 l_old, l_more = score(old, batches, seen), score(more, batches, seen)
                 print(
                     f"| {seen} (control: first task, trained more) | {waysteps or 'per maze'} | "
