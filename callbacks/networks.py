@@ -90,6 +90,6 @@ class WeightConsolidation(L.Callback):
         batches = []
         if pl_module.needs_fisher:
             batches = trainer.datamodule.fixed_batches(
-                self.fisher_batches, self.seed, self.batch_size, pl_module.device
+                self.fisher_batches, self.seed, self.batch_size, pl_module.device, split="train"
             )
         pl_module.consolidate(batches)

@@ -14,10 +14,12 @@ import lightning as L
 import numpy as np
 import torch
 from lightning.pytorch.loggers import TensorBoardLogger
+from lightning.pytorch.utilities import rank_zero_warn
 from torch import Tensor
 from typing_extensions import override
 
 from ..decisions import (
+    decided_by_budget,
     extended_subspace_candidates,
     keep_previous,
     pac_rate,
@@ -57,13 +59,18 @@ class AnchorExtension(L.Callback):
 
 @dataclass
 class SearchResult:
-    """What the search of one subspace found on the current task."""
+    """What the search of one subspace found on the current task. Losses are scored on the
+    task's held-out episodes (what the decision uses); ``*_train`` on its training episodes."""
 
     l_curr: float
     alpha_curr: list[float]
     l_prev: float | None = None
     alpha_prev: list[float] | None = None
     l_trained: float | None = None  # the trained weights' loss, when refine_current moved them
+    l_curr_train: float | None = None
+    l_prev_train: float | None = None
+    l_window: float | None = None  # L_curr when the convergence window opened
+    improvement: float | None = None  # relative fall of L_curr over the window (convergence)
 
 
 def _refine(result: SearchResult, candidates: Tensor, race: RaceOutcome) -> None:
@@ -73,16 +80,32 @@ def _refine(result: SearchResult, candidates: Tensor, race: RaceOutcome) -> None
         result.l_curr, result.alpha_curr = race.best_loss, candidates[race.best].tolist()
 
 
+def window_start(max_steps: int, window: float) -> int | None:
+    """The step after which a task's last ``window`` share of steps begins (None: no window,
+    e.g. a run bounded by epochs or a zero window)."""
+    if max_steps is None or max_steps <= 0 or window <= 0:
+        return None
+    return max(max_steps - max(round(window * max_steps), 1), 0)
+
+
 class DirichletEvaluation(L.Callback):
     """At the end of a task, search the previous anchors of each subspace for the best weights.
 
     ``n_candidates`` Dirichlet(1) draws are raced (:func:`hispo_pl.search.race_candidates`):
     all are ranked on a probe of ``probe_samples`` samples, and the ``survivors`` best are
-    scored on ``n_batches`` batches of the current task, the same batches for every candidate
-    (common random numbers), in eval mode with deterministic predictions, chunks of candidates
-    in one batched forward. The trained weights (softmax of the scores) are scored on the same
-    batches. Results are kept in ``results`` for :class:`SubspacePruning`, and the losses saved
-    as ``search/task_XX_<subspace>.npz`` in the run directory.
+    scored on ``n_batches`` batches of the current task's held-out episodes (see
+    ``TaskDataModule.holdout``), the same batches for every candidate (common random numbers),
+    in eval mode with deterministic predictions, chunks of candidates in one batched forward.
+    The trained weights (softmax of the scores) are scored on the same batches. The chosen
+    points are also scored on training batches (``l_curr_train``, ``l_prev_train``), so that a
+    record shows how much of a loss is generalisation. Results are kept in ``results`` for
+    :class:`SubspacePruning`, and the losses saved as ``search/task_XX_<subspace>.npz`` in
+    the run directory.
+
+    Convergence: when the last ``convergence_window`` share of a task's steps begins,
+    ``L_curr`` is measured once more; ``improvement = L_window / L_curr − 1`` says how much the
+    current point was still improving at the end of training. Above the pruning tolerance the
+    decision is made by the step budget rather than by the task (SubspacePruning warns).
 
     Args:
         n_candidates: Dirichlet draws per subspace.
@@ -100,8 +123,10 @@ class DirichletEvaluation(L.Callback):
         refine_current: also race the grown subspace (the trained weights, the new anchor
             alone and ``n_candidates`` Dirichlet draws over every anchor) and take the best as
             ``alpha_curr`` / ``L_curr``. Not in the paper, which keeps the softmax of the
-            trained scores; on our short budgets the scores stay near uniform and better points
-            lie nearer the new anchor (README).
+            trained scores; on short budgets the scores stay near uniform and better points
+            lie nearer the new anchor (docs/method.md).
+        convergence_window: share of the task's last steps over which the convergence
+            diagnostic is measured (0: off).
     """
 
     def __init__(
@@ -115,11 +140,14 @@ class DirichletEvaluation(L.Callback):
         seed: int = 0,
         every_n_steps: int = 0,
         refine_current: bool = True,
+        convergence_window: float = 0.2,
     ):
         if every_n_steps < 0:
             raise ValueError(
                 f"every_n_steps must be >= 0 (0: only at task end), got {every_n_steps}"
             )
+        if not 0.0 <= convergence_window < 1.0:
+            raise ValueError(f"convergence_window must be in [0, 1), got {convergence_window}")
         self.n_candidates, self.n_batches, self.loss, self.seed = (
             n_candidates,
             n_batches,
@@ -129,16 +157,34 @@ class DirichletEvaluation(L.Callback):
         self.survivors, self.probe_samples, self.precision = survivors, probe_samples, precision
         self.every_n_steps = every_n_steps
         self.refine_current = refine_current
+        self.convergence_window = convergence_window
         self.results: dict[str, SearchResult] = {}
+        self._l_window: dict[str, float] = {}  # L_curr per subspace when the window opened
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         _require_subspace_policy(pl_module, type(self).__name__)
         self.results = {}
+        self._l_window = {}
+
+    @override
+    def state_dict(self) -> dict:
+        return {"l_window": dict(self._l_window)}
+
+    @override
+    def load_state_dict(self, state_dict: dict) -> None:
+        self._l_window = {k: float(v) for k, v in state_dict.get("l_window", {}).items()}
 
     @override
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
         step = trainer.global_step
+        if step == window_start(trainer.max_steps, self.convergence_window):
+            self._l_window = {
+                name: res.l_curr
+                for name, res in self._run_search(
+                    trainer, pl_module, save=False, prev=False
+                ).items()
+            }
         if not self.every_n_steps or step % self.every_n_steps or step >= trainer.max_steps:
             return  # the last step's search is the task-end one
         metrics = {}
@@ -151,12 +197,32 @@ class DirichletEvaluation(L.Callback):
 
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        self.results = self._run_search(trainer, pl_module)
+        self.results = self._run_search(trainer, pl_module, train_losses=True)
+        for name, res in self.results.items():
+            if name in self._l_window and res.l_curr > 0:
+                res.l_window = self._l_window[name]
+                res.improvement = res.l_window / res.l_curr - 1.0
 
     @torch.no_grad()
-    def _run_search(self, trainer: L.Trainer, module, save: bool = True) -> dict[str, SearchResult]:
+    def _run_search(
+        self,
+        trainer: L.Trainer,
+        module,
+        save: bool = True,
+        prev: bool = True,
+        train_losses: bool = False,
+    ) -> dict[str, SearchResult]:
+        """``L_curr`` (and with ``prev``, ``L_prev``) of every trained subspace on held-out
+        batches; with ``train_losses`` the chosen points are scored on training batches too."""
         device = module.device
         batches = trainer.datamodule.fixed_batches(self.n_batches, self.seed, device=device)
+        train_batches = (
+            trainer.datamodule.fixed_batches(
+                self.n_batches, self.seed, device=device, split="train"
+            )
+            if train_losses
+            else None
+        )
         probe = {k: v[: self.probe_samples] for k, v in batches[0].items()}
         precision = resolve_precision(self.precision, device)
         generator = torch.Generator().manual_seed(self.seed)
@@ -166,7 +232,7 @@ class DirichletEvaluation(L.Callback):
                 if module.transferred(name):  # zero-shot: nothing was trained to compare
                     continue
 
-                def race(cands, probe=probe, name=name):
+                def race(cands, probe=probe, name=name, batches=batches):
                     return race_subspace(
                         module, name, cands, batches, probe, self.survivors, self.loss, precision
                     )
@@ -175,20 +241,31 @@ class DirichletEvaluation(L.Callback):
                 l_curr = race(alpha_curr[None], probe=None).best_loss
                 result = SearchResult(l_curr, alpha_curr.tolist())
                 k = module.n_anchors(name)
-                if k > 1:
+                cands, outcome = None, None
+                if k > 1 and prev:
                     cands = previous_subspace_candidates(self.n_candidates, k, generator).to(device)
                     outcome = race(cands)
                     result.l_prev, result.alpha_prev = (
                         outcome.best_loss,
                         cands[outcome.best].tolist(),
                     )
-                    if self.refine_current:
-                        cands_curr = extended_subspace_candidates(
-                            self.n_candidates, alpha_curr, generator
-                        )
-                        _refine(result, cands_curr, race(cands_curr))
-                    if save:
-                        self._save(trainer, module, name, cands, outcome, result)
+                if k > 1 and self.refine_current:
+                    cands_curr = extended_subspace_candidates(
+                        self.n_candidates, alpha_curr, generator
+                    )
+                    _refine(result, cands_curr, race(cands_curr))
+                if save and outcome is not None:
+                    self._save(trainer, module, name, cands, outcome, result)
+                if train_batches is not None:
+                    chosen = [result.alpha_curr]
+                    if result.alpha_prev is not None:
+                        chosen.append(result.alpha_prev)
+                    on_train = race(
+                        torch.tensor(chosen, device=device), probe=None, batches=train_batches
+                    )
+                    result.l_curr_train = float(on_train.losses[0])
+                    if result.l_prev is not None:
+                        result.l_prev_train = float(on_train.losses[1])
                 results[name] = result
         return results
 
@@ -277,6 +354,13 @@ class SubspacePruning(L.Callback):
         else:
             module.set_task_alpha(task, name, torch.tensor(res.alpha_curr))
             action = "keep"
+        if res.l_prev is not None and decided_by_budget(res.improvement, eps):
+            rank_zero_warn(
+                f"task {task + 1}, {name} subspace ({action}): L_curr still fell by "
+                f"{res.improvement:.1%} over the last {self._search.convergence_window:.0%} of "
+                f"the steps, more than eps = {eps}; the step budget, not the task, decided "
+                "this. Train longer (--trainer.max_steps) for a decision about the task."
+            )
         return {
             "task": task,
             "subspace": name,
@@ -306,6 +390,13 @@ def log_decisions(trainer: L.Trainer, module, decisions: list[dict]) -> None:
             metrics[f"search/{d['subspace']}/L_curr"] = d["l_curr"]
         if d.get("l_trained") is not None:  # refine_current replaced the trained weights
             metrics[f"search/{d['subspace']}/L_trained"] = d["l_trained"]
+        for key, tag in (
+            ("l_curr_train", "L_curr_train"),
+            ("l_prev_train", "L_prev_train"),
+            ("improvement", "convergence"),
+        ):
+            if d.get(key) is not None:
+                metrics[f"search/{d['subspace']}/{tag}"] = d[key]
         for policy, rate in d.get("pac_rate", {}).items():
             metrics[f"zero_shot/{d['subspace']}/pac_rate_{policy}"] = rate
     logger.log_metrics(metrics, step=task)

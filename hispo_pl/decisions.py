@@ -18,6 +18,13 @@ def keep_previous(l_prev: float, l_curr: float, eps: float) -> bool:
     return l_prev <= (1.0 + eps) * l_curr
 
 
+def decided_by_budget(improvement: float | None, eps: float) -> bool:
+    """Whether the newest anchor was still improving by more than the tolerance over the
+    last window of its training (``improvement = L_window / L_curr − 1``): a longer budget
+    could then flip the decision, so it reflects the step budget rather than the task."""
+    return improvement is not None and improvement > eps
+
+
 def previous_subspace_candidates(
     n: int, n_anchors: int, generator: torch.Generator | None = None
 ) -> Tensor:

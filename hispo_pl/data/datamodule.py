@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
+from typing import Literal
 
 import lightning as L
 import torch
@@ -28,6 +29,7 @@ class _Batches(IterableDataset):
 
 
 DEFAULT_TASK = "pointmaze-umaze-N[500]"
+Split = Literal["train", "heldout"]
 
 
 class TaskDataModule(L.LightningDataModule):
@@ -54,6 +56,10 @@ class TaskDataModule(L.LightningDataModule):
             shares over the tasks seen so far (the RPL baseline: an upper bound that keeps old
             data, which the continual setting forbids). Task-end callbacks still draw their
             batches from the current task only.
+        holdout: share of each task's episodes never trained on (chosen by episode, with a
+            fixed seed): the subspace search, ``L_curr`` and the zero-shot test score on them,
+            so that a decision measures how a policy generalises, not how well it memorised.
+            0 trains on every episode and scores decisions on training data (the paper).
     """
 
     def __init__(
@@ -69,8 +75,13 @@ class TaskDataModule(L.LightningDataModule):
         seed: int = 0,
         stream: str | list[str] | None = None,
         replay: bool = False,
+        holdout: float = 0.1,
     ):
         super().__init__()
+        if not 0.0 <= holdout < 1.0:
+            raise ValueError(
+                f"--data.holdout must be in [0, 1) (a share of episodes), got {holdout}"
+            )
         self.stream: list[str] | None = (
             None if stream is None else [t.spec for t in parse_stream(stream)]
         )
@@ -90,7 +101,9 @@ class TaskDataModule(L.LightningDataModule):
         self.steps_per_epoch = steps_per_epoch
         self.seed = seed
         self.replay = replay
-        self.data: EpisodeArrays | None = None
+        self.holdout = holdout
+        self.data: EpisodeArrays | None = None  # every episode of the task
+        self.splits: dict[Split, EpisodeArrays] = {}  # "train" and "heldout" parts of data
         self.replayed: list[tuple[EpisodeArrays, HERConfig]] = []
 
     def her_config(self, task: Task) -> HERConfig:
@@ -135,22 +148,34 @@ class TaskDataModule(L.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         if self.data is None:
             self.data = load_episodes(self.dataset or self.task).for_task(self.task)
-        if self.replay and not self.replayed:
+            train, heldout = self.data.split_episodes(self.holdout)
+            self.splits = {"train": train, "heldout": heldout}
+        if self.replay and not self.replayed:  # earlier tasks' training episodes only
             self.replayed = [
-                (load_episodes(task).for_task(task), self.her_config(task))
+                (
+                    load_episodes(task).for_task(task).split_episodes(self.holdout)[0],
+                    self.her_config(task),
+                )
                 for task in self.earlier_tasks()
             ]
 
     def fixed_batches(
-        self, n: int, seed: int, batch_size: int | None = None, device: torch.device | None = None
+        self,
+        n: int,
+        seed: int,
+        batch_size: int | None = None,
+        device: torch.device | None = None,
+        split: Split = "heldout",
     ) -> list[dict[str, torch.Tensor]]:
-        """``n`` HER batches of the current task from their own seeded sampler (independent of
-        the training stream): what task-end callbacks score candidates or measure a Fisher on."""
-        sampler = HERSampler(self.data, self.her, batch_size or self.batch_size, seed=seed)
+        """``n`` HER batches of the current task's ``split`` episodes from their own seeded
+        sampler (independent of the training stream): what task-end callbacks score candidates
+        on (``heldout``) or measure a Fisher on (``train``)."""
+        data = self.splits[split]
+        sampler = HERSampler(data, self.her, batch_size or self.batch_size, seed=seed)
         return [{k: v.to(device) for k, v in sampler.sample().items()} for _ in range(n)]
 
     def train_dataloader(self) -> DataLoader:
-        sampler = HERSampler(self.data, self.her, self.batch_size, seed=self.seed)
+        sampler = HERSampler(self.splits["train"], self.her, self.batch_size, seed=self.seed)
         if self.replayed:
             earlier = [
                 HERSampler(data, her, seed=self.seed + 1 + k)

@@ -74,7 +74,30 @@ class EpisodeArrays:
 
     @property
     def n_episodes(self) -> int:
-        return int(len(np.unique(self.episode_end)))
+        """Episodes with at least one sampled row (a split keeps its share of them)."""
+        return int(len(np.unique(self.episode_end[self.sample_index])))
+
+    def split_episodes(self, heldout: float, seed: int = 0) -> tuple[EpisodeArrays, EpisodeArrays]:
+        """Split by episode into (train, held-out): ``round(heldout · episodes)`` episodes (at
+        least one when ``heldout`` > 0 and there are two or more), drawn with ``seed``, are
+        only ever scored on. The arrays are shared; each part samples only its own episodes'
+        rows, and relabelled goals and subgoals never leave a row's episode, so nothing of a
+        held-out episode reaches training. ``heldout=0`` returns the data twice (the paper's
+        behaviour: decisions scored on the training data)."""
+        if not 0.0 <= heldout < 1.0:
+            raise ValueError(f"the held-out share must be in [0, 1), got {heldout}")
+        ends = np.unique(self.episode_end[self.sample_index])
+        n = round(heldout * len(ends))
+        if heldout > 0 and len(ends) >= 2:
+            n = min(max(n, 1), len(ends) - 1)
+        if n == 0:
+            return self, self
+        chosen = np.random.default_rng(seed).choice(ends, size=n, replace=False)
+        held = np.isin(self.episode_end[self.sample_index], chosen)
+        return (
+            replace(self, sample_index=self.sample_index[~held]),
+            replace(self, sample_index=self.sample_index[held]),
+        )
 
     def for_task(self, task: Task) -> EpisodeArrays:
         """The arrays as an agent in ``task``'s variant sees them."""

@@ -66,7 +66,8 @@ class NetworkPerTask(GoalConditionedBC):
         backbone: ``hbc`` (hierarchical) or ``bc`` (flat, the low width), for the BC-vs-HBC table.
         init: a task's network starts ``fresh`` (scratch) or from the ``previous`` task's.
         keep: ``all`` networks (one per task, each task acts with its own) or the ``last`` one.
-        high_hidden, low_hidden, dropout, high_log_std, low_obs, binary_actions: the backbone
+        high_hidden, low_hidden, dropout, high_log_std, low_obs, binary_actions, low_log_std: the
+            backbone
             (as :class:`HBC`).
         lr, lr_schedule: Adam, restarted at every task.
     """
@@ -87,6 +88,7 @@ class NetworkPerTask(GoalConditionedBC):
         lr: float = 3e-4,
         lr_schedule: Literal["cosine", "constant"] = "cosine",
         binary_actions: int = 0,
+        low_log_std: float | None = None,
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         if init not in ("fresh", "previous"):

@@ -44,6 +44,7 @@ class GoalConditionedBC(L.LightningModule):
             hp.get("high_log_std"),
             hp.get("low_obs", True),
             hp.get("binary_actions", 0),
+            hp.get("low_log_std"),
         )
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
@@ -135,6 +136,7 @@ class HierarchicalNet(nn.Module):
         high_log_std: float | None = None,
         low_obs: bool = True,
         binary_actions: int = 0,
+        low_log_std: float | None = None,
     ):
         super().__init__()
         f = feature_dim(goal_dim)
@@ -147,6 +149,7 @@ class HierarchicalNet(nn.Module):
             low_hidden,
             action_dim,
             dropout,
+            fixed_log_std=low_log_std,
             binary=binary_actions,
         )
 
@@ -241,6 +244,7 @@ def make_backbone(
     high_log_std: float | None = None,
     low_obs: bool = True,
     binary_actions: int = 0,
+    low_log_std: float | None = None,
 ) -> HierarchicalNet | FlatNet:
     """One single-task network: hierarchical (``hbc``) or flat (``bc``, the low width)."""
     if backbone == "hbc":
@@ -254,6 +258,7 @@ def make_backbone(
             high_log_std,
             low_obs,
             binary_actions,
+            low_log_std,
         )
     if backbone == "bc":
         return FlatNet(obs_dim, action_dim, goal_dim, low_hidden, dropout, binary_actions)
@@ -264,7 +269,9 @@ class HBC(GoalConditionedBC):
     """Hierarchical goal-conditioned BC on one task (:class:`HierarchicalNet`).
 
     ``high_log_std``: a fixed log-std makes the high policy's loss a squared error on the
-    subgoal; ``None`` learns it. ``low_obs``: whether the low policy sees the observation.
+    subgoal; ``None`` learns it. ``low_log_std``: the same for the low policy's action (a
+    squared error on the continuous entries). ``low_obs``: whether the low policy sees the
+    observation.
     ``binary_actions``: how many leading action entries are buttons (Bernoulli; linked from
     the data: 6 for the video-game mazes, 0 for the mazes' continuous controls).
     """
@@ -282,6 +289,7 @@ class HBC(GoalConditionedBC):
         high_log_std: float | None = None,
         low_obs: bool = True,
         binary_actions: int = 0,
+        low_log_std: float | None = None,
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()

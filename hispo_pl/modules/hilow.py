@@ -66,6 +66,7 @@ class HiLOW(HiSPO):
         high_log_std: float | None = None,
         low_obs: bool = True,
         binary_actions: int = 0,
+        low_log_std: float | None = None,
     ):
         if rank < 1:
             raise ValueError(f"HiLOW: rank must be >= 1, got {rank}")
@@ -91,6 +92,7 @@ class HiLOW(HiSPO):
             high_log_std,
             low_obs,
             binary_actions,
+            low_log_std,
         )
         for policy in self.policies.values():  # θ_1 as HiSPO draws it, then low-rank anchors
             low_rank_(policy.net, rank)

@@ -84,6 +84,7 @@ class HiSPO(GoalConditionedBC):
         low_obs: as in :class:`HBC`: whether the low policy sees the observation (``False``:
             only the features of the relative subgoal).
         binary_actions: as in :class:`HBC`: leading action entries that are buttons.
+        low_log_std: as in :class:`HBC`: a fixed log-std for the low policy (squared error).
 
     Which policies a subspace holds is the class attribute ``subspace_policies`` (here each
     policy its own subspace; :class:`~hispo_pl.modules.cspo.CSPO` puts both in one): the
@@ -110,6 +111,7 @@ class HiSPO(GoalConditionedBC):
         high_log_std: float | None = None,
         low_obs: bool = True,
         binary_actions: int = 0,
+        low_log_std: float | None = None,
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
@@ -128,6 +130,7 @@ class HiSPO(GoalConditionedBC):
                     low_hidden,
                     action_dim,
                     dropout,
+                    fixed_log_std=low_log_std,
                     binary=binary_actions,
                 ),
             }

@@ -41,7 +41,7 @@ class PNN(GoalConditionedBC):
         obs_dim, action_dim, goal_dim: sizes (linked from the data by the CLI).
         backbone: ``hbc`` (columns for ``high`` and ``low``) or ``bc`` (columns for one flat
             ``policy``, ``low_hidden`` wide, on the high policy's inputs), for the BC-vs-HBC table.
-        high_hidden, low_hidden, dropout, high_log_std, low_obs, binary_actions: each
+        high_hidden, low_hidden, dropout, high_log_std, low_obs, binary_actions, low_log_std: each
             column's, as :class:`HBC`.
         lr, lr_schedule: Adam over the newest column and its laterals, restarted at every task.
 
@@ -68,6 +68,7 @@ class PNN(GoalConditionedBC):
         lr: float = 3e-4,
         lr_schedule: Literal["cosine", "constant"] = "cosine",
         binary_actions: int = 0,
+        low_log_std: float | None = None,
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
@@ -85,6 +86,7 @@ class PNN(GoalConditionedBC):
                 low_hidden,
                 action_dim,
                 dropout,
+                fixed_log_std=low_log_std,
                 binary=binary_actions,
             )
             self.policy_names: tuple[str, ...] = ("high", "low")

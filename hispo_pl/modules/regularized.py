@@ -128,6 +128,7 @@ class RegularizedFineTuning(NetworkPerTask):
         lr: float = 3e-4,
         lr_schedule: Literal["cosine", "constant"] = "cosine",
         binary_actions: int = 0,
+        low_log_std: float | None = None,
     ):
         if penalty not in ("l2", "ewc"):
             raise ValueError(f"penalty must be 'l2' or 'ewc', got {penalty!r}")
@@ -146,6 +147,7 @@ class RegularizedFineTuning(NetworkPerTask):
             lr=lr,
             lr_schedule=lr_schedule,
             binary_actions=binary_actions,
+            low_log_std=low_log_std,
         )
         self.save_hyperparameters()
         self.remove_ignored_hparams(["init", "keep"])  # fixed here, not arguments
