@@ -39,6 +39,9 @@ RESULTS_FILE = "results.json"  # written by hispo_pl.loop.ContinualLoop (same na
 PROGRESS_FILE = "progress.json"  # idem: present while a stream is part-way through
 RUN_FILE = "run.json"  # the benchmark's record of a run: method, seed, command, budget
 LOG_FILE = "fit.log"
+DECISIONS_FILE = "decisions.jsonl"  # written by the pruning / zero-shot callbacks
+CONFIG_FILE = "config.yaml"  # written by LightningCLI: the run's whole configuration
+EXPORTED = (RESULTS_FILE, DECISIONS_FILE, CONFIG_FILE, RUN_FILE)  # a reported run's small files
 PLAN_FILE = "benchmark.json"
 RUNS_DIR = "runs"
 FIT_MODULE = ("-m", "hispo_pl.cli")  # run with the worker's own interpreter
@@ -280,28 +283,60 @@ def plan_runs(
 
 @dataclass
 class RunRecord:
-    """A finished run as found on disk: its ``results.json`` and, if the benchmark launched
-    it, its ``run.json``."""
+    """A finished run as found on disk: its ``results.json``, its decision records and, if the
+    benchmark launched it, its ``run.json``."""
 
     method: str
     seed: int
     results: dict
     meta: dict = field(default_factory=dict)
+    decisions: list[dict] = field(default_factory=list)
+
+
+def finished_run_dirs(out: Path) -> list[Path]:
+    """Run folders with a ``results.json``: ``OUT/runs/<method>/seed<S>`` (where the benchmark
+    runs them) or ``OUT/<method>/seed<S>`` (an exported copy, e.g. under ``docs/results``)."""
+    out = Path(out)
+    found = list(out.glob(f"{RUNS_DIR}/*/seed*/{RESULTS_FILE}"))
+    found += [p for p in out.glob(f"*/seed*/{RESULTS_FILE}") if p.parts[-3] != RUNS_DIR]
+    return sorted(p.parent for p in found)
 
 
 def load_records(out: Path) -> list[RunRecord]:
-    """Every ``OUT/runs/<method>/seed<S>/results.json``, sorted by method then seed."""
+    """Every finished run under ``out`` (:func:`finished_run_dirs`), sorted by method then seed."""
     records = []
-    for path in sorted((Path(out) / RUNS_DIR).glob(f"*/seed*/{RESULTS_FILE}")):
-        seed_dir = path.parent
+    for seed_dir in finished_run_dirs(out):
         try:
             seed = int(seed_dir.name.removeprefix("seed"))
         except ValueError:
             continue
-        meta_path = seed_dir / RUN_FILE
+        meta_path, decisions_path = seed_dir / RUN_FILE, seed_dir / DECISIONS_FILE
         meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
-        records.append(RunRecord(seed_dir.parent.name, seed, json.loads(path.read_text()), meta))
+        decisions = []
+        if decisions_path.exists():
+            decisions = [json.loads(x) for x in decisions_path.read_text().splitlines() if x]
+        results = json.loads((seed_dir / RESULTS_FILE).read_text())
+        records.append(RunRecord(seed_dir.parent.name, seed, results, meta, decisions))
     return sorted(records, key=lambda r: (r.method, r.seed))
+
+
+def export_runs(out: Path, dest: Path) -> list[Path]:
+    """Copy the small files of every finished run under ``out`` (results, decisions, config,
+    run record; never checkpoints or event files) to ``dest/<method>/seed<S>/``, the layout
+    that is committed under ``docs/results/<stream>/`` and read back by ``--report-only``."""
+    written = []
+    if (Path(out) / PLAN_FILE).exists():  # the stream's name, for the report's title
+        Path(dest).mkdir(parents=True, exist_ok=True)
+        (Path(dest) / PLAN_FILE).write_bytes((Path(out) / PLAN_FILE).read_bytes())
+        written.append(Path(dest) / PLAN_FILE)
+    for seed_dir in finished_run_dirs(out):
+        target = Path(dest) / seed_dir.parent.name / seed_dir.name
+        target.mkdir(parents=True, exist_ok=True)
+        for name in EXPORTED:
+            if (seed_dir / name).exists():
+                (target / name).write_bytes((seed_dir / name).read_bytes())
+                written.append(target / name)
+    return written
 
 
 def scratch_method_for(method: str, available: Iterable[str]) -> str | None:
@@ -465,6 +500,48 @@ def table_csv(rows: Sequence[MethodRow]) -> str:
     return buf.getvalue()
 
 
+def _loss(value: float | None) -> str:
+    return "" if value is None else f"{value:.4f}"
+
+
+def decisions_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
+    """Every keep / prune decision of every run: the losses the rule compared (held-out), the
+    same points on training episodes, and how much ``L_curr`` still fell over the last steps
+    of the task (the convergence diagnostic; above ε the budget decided)."""
+    lines = [
+        f"# Decisions{': ' + stream if stream else ''}\n",
+        "| method | seed | task | subspace | L_prev | L_curr | L_prev / L_curr | ε | "
+        "train L_prev / L_curr | convergence | decision | anchors |",
+        "|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---|---:|",
+    ]
+    for r in records:
+        for d in r.decisions:
+            if d.get("decision") not in ("first", "keep", "prune"):
+                continue  # zero-shot records carry no losses
+            ratio = d["l_prev"] / d["l_curr"] if d.get("l_prev") is not None else None
+            train = (
+                d["l_prev_train"] / d["l_curr_train"]
+                if d.get("l_prev_train") is not None and d.get("l_curr_train")
+                else None
+            )
+            conv = d.get("improvement")
+            lines.append(
+                f"| {r.method} | {r.seed} | {d['task'] + 1} | {d['subspace']} | "
+                f"{_loss(d.get('l_prev'))} | {_loss(d['l_curr'])} | "
+                f"{'' if ratio is None else f'{ratio:.3f}'} | {d.get('eps', '')} | "
+                f"{'' if train is None else f'{train:.3f}'} | "
+                f"{'' if conv is None else f'{conv:+.1%}'} | {d['decision']} | {d['anchors']} |"
+            )
+    if len(lines) == 3:
+        return ""
+    legend = (
+        "\nLosses: squared error of the deterministic prediction on the task's held-out "
+        "episodes (train: on its training episodes). The rule prunes iff L_prev / L_curr ≤ "
+        "1 + ε. Convergence: relative fall of L_curr over the last 20 % of the task's steps.\n"
+    )
+    return "\n".join(lines) + "\n" + legend
+
+
 def runtime_csv(records: Sequence[RunRecord]) -> str:
     """One line per run: method, seed, wall minutes (sum of the tasks' ``wall_time_s``),
     steps per task (from ``run.json``; empty for runs the benchmark did not launch)."""
@@ -539,6 +616,10 @@ def write_report(out: Path, stream: str | None = None) -> list[Path]:
     ):
         (out / name).write_text(text)
         written.append(out / name)
+    decisions = decisions_markdown(records, stream)
+    if decisions:
+        (out / "decisions.md").write_text(decisions)
+        written.append(out / "decisions.md")
     if plot_perf_vs_memory(rows, out / "perf_vs_memory.png", stream):
         written.append(out / "perf_vs_memory.png")
     return written
@@ -814,6 +895,13 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="only rebuild the tables and figure in OUT from the finished runs",
     )
+    parser.add_argument(
+        "--export",
+        metavar="DEST",
+        default=None,
+        help="copy every finished run's small files (results, decisions, config) to "
+        "DEST/<method>/seed<S>/ and write the report there (e.g. docs/results/pointmaze-1)",
+    )
     return parser
 
 
@@ -867,6 +955,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = Path(args.out)
     if args.report_only:
         try:
+            if args.export:
+                copied = export_runs(out, Path(args.export))
+                print(f"[benchmark] exported {len(copied)} files to {args.export}")
+                out = Path(args.export)
             _print_report(out, args.stream)
         except FileNotFoundError as e:
             parser.error(str(e))
@@ -947,6 +1039,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     reporter.close()
     try:
+        if args.export:
+            copied = export_runs(out, Path(args.export))
+            print(f"[benchmark] exported {len(copied)} files to {args.export}")
+            _print_report(Path(args.export), stream_name)
         _print_report(out, stream_name)
     except FileNotFoundError as e:
         print(f"[benchmark] no tables: {e}")

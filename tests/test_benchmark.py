@@ -287,6 +287,54 @@ def test_write_report_from_disk_and_report_only(tmp_path, capsys):
     assert "no finished runs" in capsys.readouterr().err
 
 
+def test_export_copies_small_files_and_the_report_rebuilds_with_decisions(tmp_path, capsys):
+    decisions = [
+        {"task": 0, "subspace": "low", "decision": "first", "l_curr": 0.2, "anchors": 1},
+        {
+            "task": 1,
+            "subspace": "low",
+            "decision": "prune",
+            "eps": 0.1,
+            "l_prev": 0.21,
+            "l_curr": 0.2,
+            "l_prev_train": 0.19,
+            "l_curr_train": 0.18,
+            "improvement": 0.02,
+            "anchors": 1,
+        },
+        {"task": 2, "subspace": "low", "decision": "zero-shot", "anchors": 1},
+    ]
+    for r in _records():
+        run_dir = tmp_path / "runs" / r.method / f"seed{r.seed}"
+        run_dir.mkdir(parents=True)
+        (run_dir / "results.json").write_text(json.dumps(r.results))
+        (run_dir / "task_01.ckpt").write_bytes(b"weights")  # never exported
+        (run_dir / "config.yaml").write_text("seed_everything: 0\n")
+        if r.method == "hispo":
+            lines = "".join(json.dumps(d) + "\n" for d in decisions)
+            (run_dir / "decisions.jsonl").write_text(lines)
+    dest = tmp_path / "docs" / "pointmaze-1"
+    args = ["benchmark", "--out", str(tmp_path), "--report-only", "--export", str(dest)]
+    assert cli_main(args) == 0
+    assert "exported" in capsys.readouterr().out
+    assert sorted(p.name for p in (dest / "hispo" / "seed0").iterdir()) == [
+        "config.yaml",
+        "decisions.jsonl",
+        "results.json",
+    ]
+    assert not list(dest.rglob("*.ckpt"))
+    assert "| hispo | 2 | 80.0 ± 10.0 |" in (dest / "table.md").read_text()
+    # the committed layout (no runs/) is read back by --report-only alone
+    (dest / "table.md").unlink()
+    assert cli_main(["benchmark", "--out", str(dest), "--report-only"]) == 0
+    assert "| hispo | 2 | 80.0 ± 10.0 |" in (dest / "table.md").read_text()
+    md = (dest / "decisions.md").read_text()
+    assert (
+        "| hispo | 0 | 2 | low | 0.2100 | 0.2000 | 1.050 | 0.1 | 1.056 | +2.0% | prune | 1 |" in md
+    )
+    assert "zero-shot" not in md and md.count("| hispo |") == 4  # 2 seeds x (first, prune)
+
+
 def test_report_without_matplotlib_writes_tables(tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "matplotlib.figure", None)  # import fails
     rows, _ = bm.aggregate(_records())
