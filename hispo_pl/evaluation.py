@@ -9,13 +9,16 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from .data.sampler import position_velocity
 from .data.tasks import Task, parse_task
 from .envs import agent_flipped, make_env
 from .envs.mazes import free_cells, maze_array
 from .nn import eval_mode
 
-PolicyFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
-"""(observation [B, obs], position [B, 2], goal [B, 2]) -> action [B, act], deterministic."""
+PolicyFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
+"""(observation [B, obs], position [B, 2], goal [B, 2], velocity [B, 2]) -> action [B, act],
+deterministic. ``velocity`` is the last position step over the family's step time (0 on an
+episode's first step), as :class:`~hispo_pl.data.sampler.HERSampler` computes it from data."""
 
 
 @dataclass(frozen=True)
@@ -76,6 +79,7 @@ class RolloutEvaluator:
             make_env(self.task, max_episode_steps=steps) for _ in range(min(episodes, max_envs))
         ]
         self.max_steps = steps
+        self.step_seconds = self.task.env_family.step_seconds
         self.options = reset_options(self.envs[0], episodes, seed)
 
     def run(self, policy: PolicyFn, progress: bool = False, record: bool = False) -> RolloutResult:
@@ -124,7 +128,14 @@ class RolloutEvaluator:
                 k: torch.as_tensor(np.stack([obs[i][k] for i in idx]), dtype=torch.float32)
                 for k in ("observation", "achieved_goal", "desired_goal")
             }
-            actions = policy(batch["observation"], batch["achieved_goal"], batch["desired_goal"])
+            previous = torch.as_tensor(
+                np.stack([paths[i][-2 if len(paths[i]) > 1 else -1] for i in idx]),
+                dtype=torch.float32,
+            )
+            velocity = position_velocity(batch["achieved_goal"], previous, self.step_seconds)
+            actions = policy(
+                batch["observation"], batch["achieved_goal"], batch["desired_goal"], velocity
+            )
             actions = actions.detach().cpu().numpy()
             for a, i in zip(actions, idx, strict=True):
                 obs[i], _, terminated, truncated, info = envs[i].step(a)
@@ -147,10 +158,10 @@ def module_policy(module, task: int | None = None) -> PolicyFn:
     """A deterministic policy function from a module's ``act(obs, pos, goal, task)``, run in
     eval mode; ``task`` picks the task's policy for methods that keep one per task."""
 
-    def policy(observation, position, goal):
+    def policy(observation, position, goal, velocity):
         with eval_mode(module):
             device = next(module.parameters()).device
             obs, pos, goal = observation.to(device), position.to(device), goal.to(device)
-            return module.act(obs, pos, goal, task=task)
+            return module.act(obs, pos, goal, task=task, velocity=velocity.to(device))
 
     return policy

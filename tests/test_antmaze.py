@@ -189,7 +189,7 @@ def test_evaluation_counts_and_ends_flipped_episodes():
     evaluator = RolloutEvaluator("antmaze-umaze-IO", episodes=3, seed=0, max_episode_steps=20)
     calls = []
 
-    def policy(observation, position, goal):
+    def policy(observation, position, goal, velocity=None):
         if not calls:  # at the first step, turn the first episode's ant over
             _turn_over(evaluator.envs[0])
         calls.append(len(observation))

@@ -33,7 +33,7 @@ def expert_policy(expert, task="pointmaze-umaze", observe=lambda o: o):
     maps the variant's observation features back to the base ones."""
     task = parse_task(task)
 
-    def policy(observation, position, goal):
+    def policy(observation, position, goal, velocity=None):
         actions = []
         for o, g in zip(observation.numpy(), goal.numpy(), strict=True):
             expert.reset()  # one expert serves every row: plan afresh from each row's own cell
@@ -44,11 +44,11 @@ def expert_policy(expert, task="pointmaze-umaze", observe=lambda o: o):
     return policy
 
 
-def zero_policy(observation, position, goal):
+def zero_policy(observation, position, goal, velocity=None):
     return torch.zeros(len(observation), 2)
 
 
-def greedy_policy(observation, position, goal):
+def greedy_policy(observation, position, goal, velocity=None):
     """Heads straight for the goal, ignoring walls: succeeds only sometimes."""
     return torch.clamp(3.0 * (goal - position) - 0.5 * observation[:, 2:4], -1.0, 1.0)
 
@@ -154,11 +154,14 @@ def test_policy_is_called_on_active_episodes_only(expert):
     seen = []
     base = expert_policy(expert)
 
-    def recording(observation, position, goal):
+    def recording(observation, position, goal, velocity=None):
         assert observation.dtype == position.dtype == goal.dtype == torch.float32
         assert observation.shape[1] == 4 and position.shape[1] == goal.shape[1] == 2
         # the position handed to the policy is the ball's, the first two observation features
         assert torch.equal(position, observation[:, :2])
+        # the velocity handed to it is the ball's too, from its positions (0 at the start)
+        expected = observation[:, 2:] if seen else torch.zeros_like(velocity)
+        assert torch.allclose(velocity, expected, atol=1e-3)
         seen.append(len(observation))
         return base(observation, position, goal)
 

@@ -71,3 +71,58 @@ def test_hispo_stream_without_observation_in_the_low_policy(tiny_umaze, tmp_path
     low_x = HBC.low_input(obs, offset, with_obs=False)
     expected, _ = module.policies["low"](low_x, module.alpha_for("low", 1))
     assert torch.equal(module.act(obs, pos, goal, task=1), expected)
+
+
+def _with_velocity(batch: dict[str, torch.Tensor], seed: int) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    return {**batch, "velocity": torch.randn(len(batch["action"]), 2, generator=g)}
+
+
+@pytest.mark.parametrize("cls", MODULES, ids=lambda c: c.__name__)
+def test_goal_space_low_policy_reads_velocity_and_not_the_observation(cls):
+    module = cls(4, 2, low_obs=False, low_velocity=True, **WIDTHS)
+    assert module.reference_model().low.net.inp[0].in_features == feature_dim(2) + 2
+    batch = _with_velocity(_batch(2), seed=5)
+    other_obs = _with_velocity(_batch(3), seed=5)
+    other_velocity = _with_velocity(_batch(2), seed=6)
+    assert torch.equal(_low_loss(module, batch), _low_loss(module, other_obs))
+    assert not torch.equal(_low_loss(module, batch), _low_loss(module, other_velocity))
+    obs, pos, goal = torch.randn(3, 4), torch.zeros(3, 2), torch.ones(3, 2)
+    module.eval()
+    with pytest.raises(ValueError, match="velocity="):
+        module.act(obs, pos, goal)
+    assert module.act(obs, pos, goal, velocity=torch.zeros(3, 2)).shape == (3, 2)
+
+
+def test_sampler_velocity_is_the_balls_from_its_positions(tiny_umaze):
+    from hispo_pl.data.sampler import HERConfig, HERSampler
+
+    sampler = HERSampler(tiny_umaze, HERConfig(), 4096, seed=0, step_seconds=0.01)
+    batch = sampler.sample()
+    first = torch.from_numpy(tiny_umaze.episode_end)  # rows that start an episode: velocity 0
+    starts = {0} | {int(e) + 1 for e in first.unique()[:-1]}
+    obs = batch["observation"]
+    is_start = torch.tensor(
+        [
+            any(torch.equal(obs[k], torch.from_numpy(tiny_umaze.observations[s])) for s in starts)
+            for k in range(64)
+        ]
+    )
+    rows = slice(0, 64)
+    expected = torch.where(is_start[:, None], torch.zeros(64, 2), obs[rows, 2:])
+    assert torch.allclose(batch["velocity"][rows], expected, atol=1e-3)
+
+
+def test_hispo_stream_with_a_goal_space_low_policy(tiny_umaze, tmp_path):
+    results, run_dir = fit_tiny_stream(
+        "hispo",
+        tmp_path,
+        ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"],
+        "--model.init_args.low_obs",
+        "false",
+        "--model.init_args.low_velocity",
+        "true",
+    )
+    assert results["BWT"] == 0.0 and len(results["R"]) == 2
+    module = GoalConditionedBC.from_checkpoint_file(str(run_dir / "task_02.ckpt"))
+    assert module.hparams.low_velocity is True

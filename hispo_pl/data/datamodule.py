@@ -159,6 +159,10 @@ class TaskDataModule(L.LightningDataModule):
                 for task in self.earlier_tasks()
             ]
 
+    def _sampler(self, data: EpisodeArrays, her: HERConfig, batch_size: int, seed: int):
+        step = self.task.env_family.step_seconds
+        return HERSampler(data, her, batch_size, seed=seed, step_seconds=step)
+
     def fixed_batches(
         self,
         n: int,
@@ -171,14 +175,14 @@ class TaskDataModule(L.LightningDataModule):
         sampler (independent of the training stream): what task-end callbacks score candidates
         on (``heldout``) or measure a Fisher on (``train``)."""
         data = self.splits[split]
-        sampler = HERSampler(data, self.her, batch_size or self.batch_size, seed=seed)
+        sampler = self._sampler(data, self.her, batch_size or self.batch_size, seed)
         return [{k: v.to(device) for k, v in sampler.sample().items()} for _ in range(n)]
 
     def train_dataloader(self) -> DataLoader:
-        sampler = HERSampler(self.splits["train"], self.her, self.batch_size, seed=self.seed)
+        sampler = self._sampler(self.splits["train"], self.her, self.batch_size, self.seed)
         if self.replayed:
             earlier = [
-                HERSampler(data, her, seed=self.seed + 1 + k)
+                self._sampler(data, her, self.batch_size, self.seed + 1 + k)
                 for k, (data, her) in enumerate(self.replayed)
             ]
             sampler = MixedSampler([sampler, *earlier], self.batch_size)

@@ -71,11 +71,20 @@ class HERSampler:
     """Draws relabelled batches from one task's episodes.
 
     Each batch is a dict of float32 tensors: ``observation`` [B, obs], ``position`` [B, 2],
-    ``goal`` [B, 2] (a future achieved position), ``subgoal`` [B, 2] (``waysteps`` ahead)
-    and ``action`` [B, act].
+    ``goal`` [B, 2] (a future achieved position), ``subgoal`` [B, 2] (``waysteps`` ahead),
+    ``velocity`` [B, 2] (the last position step over ``step_seconds``, 0 at an episode's first
+    row: what a rollout can compute from the positions it has seen, see
+    :func:`position_velocity`) and ``action`` [B, act].
     """
 
-    def __init__(self, data: EpisodeArrays, cfg: HERConfig, batch_size: int = 1024, seed: int = 0):
+    def __init__(
+        self,
+        data: EpisodeArrays,
+        cfg: HERConfig,
+        batch_size: int = 1024,
+        seed: int = 0,
+        step_seconds: float = 1.0,
+    ):
         self.cfg = cfg
         self.batch_size = batch_size
         self.rng = np.random.default_rng(seed)
@@ -85,19 +94,33 @@ class HERSampler:
         self._end = data.episode_end
         self._segment_end = data.segment_end
         self._index = data.sample_index
+        first = np.ones(len(data.episode_end), dtype=bool)  # an episode's first row
+        first[1:] = data.episode_end[1:] != data.episode_end[:-1]
+        self._previous = torch.from_numpy(np.arange(len(first)) - (~first))
+        self._step_seconds = step_seconds
 
     def sample(self, batch_size: int | None = None) -> dict[str, torch.Tensor]:
         n = batch_size or self.batch_size
         i = self._index[self.rng.integers(0, len(self._index), n)]
         goal, subgoal = relabel_indices(i, self._end, self.cfg, self.rng, self._segment_end)
         i, goal, subgoal = (torch.from_numpy(x) for x in (i, goal, subgoal))
+        position = self._pos[i]
         return {
             "observation": self._obs[i],
-            "position": self._pos[i],
+            "position": position,
+            "velocity": position_velocity(
+                position, self._pos[self._previous[i]], self._step_seconds
+            ),
             "goal": self._pos[goal],
             "subgoal": self._pos[subgoal],
             "action": self._act[i],
         }
+
+
+def position_velocity(position, previous, step_seconds: float):
+    """Velocity in goal space from two consecutive positions: the same in the data and in a
+    rollout, and untouched by observation variants (positions stay in maze coordinates)."""
+    return (position - previous) / step_seconds
 
 
 def split_evenly(total: int, parts: int) -> list[int]:

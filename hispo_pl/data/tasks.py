@@ -46,6 +46,7 @@ class Family:
     variants: tuple[str, ...] = tuple(VARIANTS)  # the variants that make sense for this agent
     default_episodes: int = 500  # dataset episodes per maze when a spec names none
     binary_actions: int = 0  # leading action entries that are buttons (Bernoulli in the policy)
+    step_seconds: float = 0.01  # time between two observations: turns position steps into velocity
 
 
 def _game_family(
@@ -66,6 +67,7 @@ def _game_family(
         variants=("N",),
         default_episodes=episodes,
         binary_actions=6,
+        step_seconds=0.1,  # decisions at 10 Hz
     )
 
 
@@ -96,6 +98,7 @@ FAMILIES: dict[str, Family] = {
             "large": MazeDefaults("Large", 1000, waysteps=15, her_temperature=50.0),
         },
         env_kwargs={"include_cfrc_ext_in_observation": False},
+        step_seconds=0.05,  # 5 MuJoCo steps of 0.01 s per action
     ),
     "amazeville": _game_family(
         "amazeville",

@@ -66,8 +66,8 @@ class NetworkPerTask(GoalConditionedBC):
         backbone: ``hbc`` (hierarchical) or ``bc`` (flat, the low width), for the BC-vs-HBC table.
         init: a task's network starts ``fresh`` (scratch) or from the ``previous`` task's.
         keep: ``all`` networks (one per task, each task acts with its own) or the ``last`` one.
-        high_hidden, low_hidden, dropout, high_log_std, low_obs, binary_actions, low_log_std: the
-            backbone
+        high_hidden, low_hidden, dropout, high_log_std, low_obs, binary_actions, low_log_std,
+            low_velocity: the backbone
             (as :class:`HBC`).
         lr, lr_schedule: Adam, restarted at every task.
     """
@@ -89,6 +89,7 @@ class NetworkPerTask(GoalConditionedBC):
         lr_schedule: Literal["cosine", "constant"] = "cosine",
         binary_actions: int = 0,
         low_log_std: float | None = None,
+        low_velocity: bool = False,
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         if init not in ("fresh", "previous"):
@@ -148,10 +149,15 @@ class NetworkPerTask(GoalConditionedBC):
 
     @torch.no_grad()
     def act(
-        self, observation: Tensor, position: Tensor, goal: Tensor, task: int | None = None
+        self,
+        observation: Tensor,
+        position: Tensor,
+        goal: Tensor,
+        task: int | None = None,
+        velocity: Tensor | None = None,
     ) -> Tensor:
         task = self.task_index if task is None else task
-        return self.network_for(task).act(observation, position, goal)
+        return self.network_for(task).act(observation, position, goal, velocity)
 
     # --- checkpoints ----------------------------------------------------------------------
 

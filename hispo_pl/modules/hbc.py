@@ -45,6 +45,7 @@ class GoalConditionedBC(L.LightningModule):
             hp.get("low_obs", True),
             hp.get("binary_actions", 0),
             hp.get("low_log_std"),
+            hp.get("low_velocity", False),
         )
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
@@ -107,9 +108,15 @@ class GoalConditionedBC(L.LightningModule):
 
     @torch.no_grad()
     def act(
-        self, observation: Tensor, position: Tensor, goal: Tensor, task: int | None = None
+        self,
+        observation: Tensor,
+        position: Tensor,
+        goal: Tensor,
+        task: int | None = None,
+        velocity: Tensor | None = None,
     ) -> Tensor:
-        """Deterministic action; ``task`` selects the task's policy where a method keeps several."""
+        """Deterministic action; ``task`` selects the task's policy where a method keeps several;
+        ``velocity`` is the goal-space velocity (read by low policies with ``low_velocity``)."""
         raise NotImplementedError
 
 
@@ -137,15 +144,16 @@ class HierarchicalNet(nn.Module):
         low_obs: bool = True,
         binary_actions: int = 0,
         low_log_std: float | None = None,
+        low_velocity: bool = False,
     ):
         super().__init__()
         f = feature_dim(goal_dim)
-        self.low_obs = low_obs
+        self.low_obs, self.low_velocity = low_obs, low_velocity
         self.high = GaussianPolicy(
             f + obs_dim + 2 * goal_dim, high_hidden, goal_dim, dropout, fixed_log_std=high_log_std
         )
         self.low = GaussianPolicy(
-            low_input_dim(obs_dim, goal_dim, low_obs),
+            low_input_dim(obs_dim, goal_dim, low_obs, low_velocity),
             low_hidden,
             action_dim,
             dropout,
@@ -158,36 +166,66 @@ class HierarchicalNet(nn.Module):
         return torch.cat([goal_features(goal - position), observation, position, goal], dim=-1)
 
     @staticmethod
-    def low_input(observation: Tensor, subgoal_offset: Tensor, with_obs: bool = True) -> Tensor:
-        if not with_obs:
-            return goal_features(subgoal_offset)
-        return torch.cat([goal_features(subgoal_offset), observation], dim=-1)
+    def low_input(
+        observation: Tensor,
+        subgoal_offset: Tensor,
+        with_obs: bool = True,
+        velocity: Tensor | None = None,
+    ) -> Tensor:
+        """[features(subgoal − pos), observation if ``with_obs``, ``velocity`` if given]."""
+        parts = [goal_features(subgoal_offset)]
+        if with_obs:
+            parts.append(observation)
+        if velocity is not None:
+            parts.append(velocity)
+        return torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0]
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        return hierarchical_losses(self.high, self.low, batch, self.low_obs)
+        return hierarchical_losses(self.high, self.low, batch, self.low_obs, self.low_velocity)
 
-    def act(self, observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
+    def act(
+        self, observation: Tensor, position: Tensor, goal: Tensor, velocity: Tensor | None = None
+    ) -> Tensor:
         offset, _ = self.high(self.high_input(observation, position, goal))
-        mean, _ = self.low(self.low_input(observation, offset, self.low_obs))
+        velocity = low_velocity_input(self.low_velocity, velocity)
+        mean, _ = self.low(self.low_input(observation, offset, self.low_obs, velocity))
         return self.low.act(mean)
 
 
-def low_input_dim(obs_dim: int, goal_dim: int, low_obs: bool) -> int:
+def low_input_dim(obs_dim: int, goal_dim: int, low_obs: bool, low_velocity: bool = False) -> int:
     """Width of the low policy's input (see :meth:`HierarchicalNet.low_input`)."""
-    return feature_dim(goal_dim) + (obs_dim if low_obs else 0)
+    return feature_dim(goal_dim) + (obs_dim if low_obs else 0) + (goal_dim if low_velocity else 0)
+
+
+def low_velocity_input(wanted: bool, velocity: Tensor | None) -> Tensor | None:
+    """The velocity a low policy with ``low_velocity`` reads (None for one without)."""
+    if not wanted:
+        return None
+    if velocity is None:
+        raise ValueError(
+            "this policy's low level reads the goal-space velocity: pass velocity= to act() "
+            "(RolloutEvaluator and module_policy do)"
+        )
+    return velocity
 
 
 def hierarchical_losses(
-    high: nn.Module, low: nn.Module, batch: dict[str, Tensor], low_obs: bool = True
+    high: nn.Module,
+    low: nn.Module,
+    batch: dict[str, Tensor],
+    low_obs: bool = True,
+    low_velocity: bool = False,
 ) -> dict:
     """HBC's losses for any pair of Gaussian policies called as ``policy(x) -> (mean, log_std)``:
     the high one on the subgoal offset, the low one on the action given the true subgoal
-    (``low_obs``: whether the low policy's input holds the observation); each policy's own
+    (``low_obs``: whether the low policy's input holds the observation, ``low_velocity``: the
+    batch's goal-space velocity); each policy's own
     :meth:`~hispo_pl.nn.mlp.GaussianPolicy.loss` (so button entries are Bernoulli)."""
     obs, pos = batch["observation"], batch["position"]
     offset = batch["subgoal"] - pos
+    velocity = batch["velocity"] if low_velocity else None
     mean_h, log_std_h = high(HierarchicalNet.high_input(obs, pos, batch["goal"]))
-    mean_l, log_std_l = low(HierarchicalNet.low_input(obs, offset, low_obs))
+    mean_l, log_std_l = low(HierarchicalNet.low_input(obs, offset, low_obs, velocity))
     loss_high = high.loss(mean_h, log_std_h, offset)
     loss_low = low.loss(mean_l, log_std_l, batch["action"])
     return {"loss": loss_high + loss_low, "loss_high": loss_high, "loss_low": loss_low}
@@ -225,7 +263,9 @@ class FlatNet(nn.Module):
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         return flat_losses(self.policy, batch)
 
-    def act(self, observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
+    def act(
+        self, observation: Tensor, position: Tensor, goal: Tensor, velocity: Tensor | None = None
+    ) -> Tensor:
         mean, _ = self.policy(HierarchicalNet.high_input(observation, position, goal))
         return self.policy.act(mean)
 
@@ -245,6 +285,7 @@ def make_backbone(
     low_obs: bool = True,
     binary_actions: int = 0,
     low_log_std: float | None = None,
+    low_velocity: bool = False,
 ) -> HierarchicalNet | FlatNet:
     """One single-task network: hierarchical (``hbc``) or flat (``bc``, the low width)."""
     if backbone == "hbc":
@@ -259,6 +300,7 @@ def make_backbone(
             low_obs,
             binary_actions,
             low_log_std,
+            low_velocity,
         )
     if backbone == "bc":
         return FlatNet(obs_dim, action_dim, goal_dim, low_hidden, dropout, binary_actions)
@@ -271,7 +313,9 @@ class HBC(GoalConditionedBC):
     ``high_log_std``: a fixed log-std makes the high policy's loss a squared error on the
     subgoal; ``None`` learns it. ``low_log_std``: the same for the low policy's action (a
     squared error on the continuous entries). ``low_obs``: whether the low policy sees the
-    observation.
+    observation. ``low_velocity``: whether it sees the goal-space velocity (from consecutive
+    positions, so observation variants do not reach it; with ``low_obs=False`` the low policy
+    then works in goal space only).
     ``binary_actions``: how many leading action entries are buttons (Bernoulli; linked from
     the data: 6 for the video-game mazes, 0 for the mazes' continuous controls).
     """
@@ -290,6 +334,7 @@ class HBC(GoalConditionedBC):
         low_obs: bool = True,
         binary_actions: int = 0,
         low_log_std: float | None = None,
+        low_velocity: bool = False,
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
@@ -303,9 +348,14 @@ class HBC(GoalConditionedBC):
 
     @torch.no_grad()
     def act(
-        self, observation: Tensor, position: Tensor, goal: Tensor, task: int | None = None
+        self,
+        observation: Tensor,
+        position: Tensor,
+        goal: Tensor,
+        task: int | None = None,
+        velocity: Tensor | None = None,
     ) -> Tensor:
-        return self.net.act(observation, position, goal)
+        return self.net.act(observation, position, goal, velocity)
 
 
 class BC(GoalConditionedBC):
@@ -337,6 +387,11 @@ class BC(GoalConditionedBC):
 
     @torch.no_grad()
     def act(
-        self, observation: Tensor, position: Tensor, goal: Tensor, task: int | None = None
+        self,
+        observation: Tensor,
+        position: Tensor,
+        goal: Tensor,
+        task: int | None = None,
+        velocity: Tensor | None = None,
     ) -> Tensor:
-        return self.net.act(observation, position, goal)
+        return self.net.act(observation, position, goal, velocity)

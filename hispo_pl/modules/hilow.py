@@ -67,6 +67,7 @@ class HiLOW(HiSPO):
         low_obs: bool = True,
         binary_actions: int = 0,
         low_log_std: float | None = None,
+        low_velocity: bool = False,
     ):
         if rank < 1:
             raise ValueError(f"HiLOW: rank must be >= 1, got {rank}")
@@ -93,6 +94,7 @@ class HiLOW(HiSPO):
             low_obs,
             binary_actions,
             low_log_std,
+            low_velocity,
         )
         for policy in self.policies.values():  # θ_1 as HiSPO draws it, then low-rank anchors
             low_rank_(policy.net, rank)

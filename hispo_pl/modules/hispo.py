@@ -18,7 +18,7 @@ from torch import Tensor, nn
 from ..nn import eval_mode
 from ..nn.mlp import GaussianPolicy, feature_dim
 from ..nn.subspace import AnchorInit, SubspaceResidualMLP, cosine_similarity_penalty
-from .hbc import HBC, GoalConditionedBC, low_input_dim
+from .hbc import HBC, GoalConditionedBC, low_input_dim, low_velocity_input
 
 SUBSPACES = ("high", "low")
 Precision = Literal["32", "bf16"]
@@ -85,6 +85,7 @@ class HiSPO(GoalConditionedBC):
             only the features of the relative subgoal).
         binary_actions: as in :class:`HBC`: leading action entries that are buttons.
         low_log_std: as in :class:`HBC`: a fixed log-std for the low policy (squared error).
+        low_velocity: as in :class:`HBC`: whether the low policy sees the goal-space velocity.
 
     Which policies a subspace holds is the class attribute ``subspace_policies`` (here each
     policy its own subspace; :class:`~hispo_pl.modules.cspo.CSPO` puts both in one): the
@@ -112,6 +113,7 @@ class HiSPO(GoalConditionedBC):
         low_obs: bool = True,
         binary_actions: int = 0,
         low_log_std: float | None = None,
+        low_velocity: bool = False,
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
@@ -126,7 +128,7 @@ class HiSPO(GoalConditionedBC):
                     fixed_log_std=high_log_std,
                 ),
                 "low": SubspaceGaussianPolicy(
-                    low_input_dim(obs_dim, goal_dim, low_obs),
+                    low_input_dim(obs_dim, goal_dim, low_obs, low_velocity),
                     low_hidden,
                     action_dim,
                     dropout,
@@ -249,7 +251,8 @@ class HiSPO(GoalConditionedBC):
         offset = batch["subgoal"] - pos
         if policy == "high":
             return HBC.high_input(obs, pos, batch["goal"]), offset
-        return HBC.low_input(obs, offset, self.hparams.low_obs), batch["action"]
+        velocity = batch["velocity"] if self.hparams.low_velocity else None
+        return HBC.low_input(obs, offset, self.hparams.low_obs, velocity), batch["action"]
 
     def _training_alphas(self, subspace: str, batch_size: int) -> Tensor:
         """One step's anchor weights of a subspace, one row per group of the batch."""
@@ -316,7 +319,12 @@ class HiSPO(GoalConditionedBC):
 
     @torch.no_grad()
     def act(
-        self, observation: Tensor, position: Tensor, goal: Tensor, task: int | None = None
+        self,
+        observation: Tensor,
+        position: Tensor,
+        goal: Tensor,
+        task: int | None = None,
+        velocity: Tensor | None = None,
     ) -> Tensor:
         task = self.task_index if task is None else task
         offset, _ = self.policies["high"](
@@ -325,7 +333,12 @@ class HiSPO(GoalConditionedBC):
         )
         low = self.policies["low"]
         mean, _ = low(
-            HBC.low_input(observation, offset, self.hparams.low_obs),
+            HBC.low_input(
+                observation,
+                offset,
+                self.hparams.low_obs,
+                low_velocity_input(self.hparams.low_velocity, velocity),
+            ),
             self.alpha_for(self.subspace_of("low"), task),
         )
         return low.act(mean)

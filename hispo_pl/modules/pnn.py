@@ -30,6 +30,7 @@ from .hbc import (
     flat_losses,
     hierarchical_losses,
     low_input_dim,
+    low_velocity_input,
 )
 
 
@@ -41,7 +42,8 @@ class PNN(GoalConditionedBC):
         obs_dim, action_dim, goal_dim: sizes (linked from the data by the CLI).
         backbone: ``hbc`` (columns for ``high`` and ``low``) or ``bc`` (columns for one flat
             ``policy``, ``low_hidden`` wide, on the high policy's inputs), for the BC-vs-HBC table.
-        high_hidden, low_hidden, dropout, high_log_std, low_obs, binary_actions, low_log_std: each
+        high_hidden, low_hidden, dropout, high_log_std, low_obs, binary_actions, low_log_std,
+            low_velocity: each
             column's, as :class:`HBC`.
         lr, lr_schedule: Adam over the newest column and its laterals, restarted at every task.
 
@@ -69,6 +71,7 @@ class PNN(GoalConditionedBC):
         lr_schedule: Literal["cosine", "constant"] = "cosine",
         binary_actions: int = 0,
         low_log_std: float | None = None,
+        low_velocity: bool = False,
     ):
         super().__init__(lr=lr, lr_schedule=lr_schedule)
         self.save_hyperparameters()
@@ -82,7 +85,7 @@ class PNN(GoalConditionedBC):
                 fixed_log_std=high_log_std,
             )
             self.low = ProgressivePolicy(
-                low_input_dim(obs_dim, goal_dim, low_obs),
+                low_input_dim(obs_dim, goal_dim, low_obs, low_velocity),
                 low_hidden,
                 action_dim,
                 dropout,
@@ -151,18 +154,25 @@ class PNN(GoalConditionedBC):
         """The backbone's losses of the newest column (the earlier ones run without gradients)."""
         if self.hparams.backbone == "bc":
             return flat_losses(self.policy, batch)
-        return hierarchical_losses(self.high, self.low, batch, self.hparams.low_obs)
+        hp = self.hparams
+        return hierarchical_losses(self.high, self.low, batch, hp.low_obs, hp.low_velocity)
 
     @torch.no_grad()
     def act(
-        self, observation: Tensor, position: Tensor, goal: Tensor, task: int | None = None
+        self,
+        observation: Tensor,
+        position: Tensor,
+        goal: Tensor,
+        task: int | None = None,
+        velocity: Tensor | None = None,
     ) -> Tensor:
         column = self.column_for(self.task_index if task is None else task)
         x = HierarchicalNet.high_input(observation, position, goal)
         if self.hparams.backbone == "bc":
             return self.policy.act(self.policy(x, column)[0])
         offset, _ = self.high(x, column)
-        low_x = HierarchicalNet.low_input(observation, offset, self.hparams.low_obs)
+        velocity = low_velocity_input(self.hparams.low_velocity, velocity)
+        low_x = HierarchicalNet.low_input(observation, offset, self.hparams.low_obs, velocity)
         return self.low.act(self.low(low_x, column)[0])
 
     # --- checkpoints ----------------------------------------------------------------------

@@ -129,6 +129,7 @@ class RegularizedFineTuning(NetworkPerTask):
         lr_schedule: Literal["cosine", "constant"] = "cosine",
         binary_actions: int = 0,
         low_log_std: float | None = None,
+        low_velocity: bool = False,
     ):
         if penalty not in ("l2", "ewc"):
             raise ValueError(f"penalty must be 'l2' or 'ewc', got {penalty!r}")
@@ -148,6 +149,7 @@ class RegularizedFineTuning(NetworkPerTask):
             lr_schedule=lr_schedule,
             binary_actions=binary_actions,
             low_log_std=low_log_std,
+            low_velocity=low_velocity,
         )
         self.save_hyperparameters()
         self.remove_ignored_hparams(["init", "keep"])  # fixed here, not arguments
