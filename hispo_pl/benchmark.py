@@ -625,6 +625,44 @@ def write_report(out: Path, stream: str | None = None) -> list[Path]:
     return written
 
 
+EMBED_BEGIN = "<!-- report: "  # <!-- report: docs/results/pointmaze-1/table.md -->
+EMBED_END = "<!-- end report -->"
+
+
+def embed_reports(doc: Path, root: Path = Path(".")) -> str:
+    """``doc``'s text with every embedded report rebuilt: a block opened by
+    ``<!-- report: DIR/NAME -->`` and closed by ``<!-- end report -->`` gets the file ``NAME``
+    that :func:`write_report` builds from the runs under ``DIR`` (relative to ``root``), without
+    its title line. Keeps a documentation page equal to what its committed run files give."""
+    import tempfile
+
+    lines, out, i = Path(doc).read_text().splitlines(), [], 0
+    while i < len(lines):
+        line = lines[i]
+        out.append(line)
+        i += 1
+        if not line.startswith(EMBED_BEGIN):
+            continue
+        target = Path(root) / line[len(EMBED_BEGIN) :].removesuffix("-->").strip()
+        with tempfile.TemporaryDirectory() as tmp:
+            for name in EXPORTED:  # a copy, so the committed report files are left as they are
+                for src in target.parent.glob(f"*/seed*/{name}"):
+                    dst = Path(tmp) / src.relative_to(target.parent)
+                    dst.parent.mkdir(parents=True, exist_ok=True)
+                    dst.write_bytes(src.read_bytes())
+            stream = (target.parent / PLAN_FILE).exists() and json.loads(
+                (target.parent / PLAN_FILE).read_text()
+            ).get("stream")
+            write_report(Path(tmp), stream or target.parent.name)
+            text = (Path(tmp) / target.name).read_text().splitlines()
+        out += [x for x in text[1:] if x or out[-1]]  # without the title, no doubled blank
+        while i < len(lines) and lines[i] != EMBED_END:
+            i += 1
+        if i == len(lines):
+            raise ValueError(f"{doc}: {line} has no closing {EMBED_END}")
+    return "\n".join(out) + "\n"
+
+
 # --- running ----------------------------------------------------------------------------------
 
 
@@ -848,7 +886,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="3",
         help="a count N (seeds 0..N-1) or a comma list such as 0,4 (default: 3)",
     )
-    parser.add_argument("--out", required=True, help="output folder (runs/, tables, figure)")
+    parser.add_argument("--out", help="output folder (runs/, tables, figure)")
     parser.add_argument(
         "--steps-per-task",
         type=int,
@@ -894,6 +932,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--report-only",
         action="store_true",
         help="only rebuild the tables and figure in OUT from the finished runs",
+    )
+    parser.add_argument(
+        "--docs",
+        metavar="PAGE",
+        default=None,
+        help="with --report-only: rebuild every report embedded in a documentation page "
+        "(e.g. docs/results.md) from its committed run files",
     )
     parser.add_argument(
         "--export",
@@ -952,6 +997,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     own, extra = _split_extra(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     args = parser.parse_args(own)
+    if args.report_only and args.docs:
+        Path(args.docs).write_text(embed_reports(Path(args.docs)))
+        print(f"[benchmark] rebuilt the reports embedded in {args.docs}")
+        return 0
+    if not args.out:
+        parser.error("--out is required (unless --report-only --docs PAGE)")
     out = Path(args.out)
     if args.report_only:
         try:
