@@ -8,6 +8,7 @@ import lightning as L
 import torch
 from torch import Tensor, nn
 
+from ..nn import fast
 from ..nn.mlp import GaussianPolicy, feature_dim, goal_features
 
 
@@ -97,7 +98,10 @@ class GoalConditionedBC(L.LightningModule):
         params = [p for p in self.parameters() if p.requires_grad]
         if not params:  # a method that does not train on this task (FRZ after its first)
             return None
-        opt = torch.optim.Adam(params, lr=self.lr)
+        # fused: one kernel for every tensor's update (the same update as the per-tensor loop)
+        opt = torch.optim.Adam(params, lr=self.lr, fused=fast.enabled())
+        if fast.enabled():
+            fast.retain_freed_memory()
         steps = self.trainer.max_steps if self.trainer is not None else -1
         if self.lr_schedule == "constant" or steps is None or steps <= 0:
             return opt
