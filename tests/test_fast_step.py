@@ -9,6 +9,8 @@ from contextlib import nullcontext
 import lightning as L
 import pytest
 import torch
+from lightning.pytorch.loggers import Logger
+from torch.utils.data import DataLoader
 
 from hispo_pl.modules import BC, CSPO, HBC, HiLOW, HiSPO
 from hispo_pl.nn import fast
@@ -173,3 +175,52 @@ def test_eval_and_no_grad_keep_the_plain_modules():
     with torch.no_grad():
         loss = module.losses(batch)["loss"]
     assert loss.grad_fn is None
+
+
+class _Recorder(Logger):
+    """Keeps what the Trainer writes: {step: {tag: value}}."""
+
+    def __init__(self):
+        super().__init__()
+        self.rows: dict[int, dict[str, float]] = {}
+
+    @property
+    def name(self) -> str:
+        return "recorder"
+
+    @property
+    def version(self) -> int:
+        return 0
+
+    def log_hyperparams(self, params, *args, **kwargs) -> None:
+        pass
+
+    def log_metrics(self, metrics, step=None) -> None:
+        self.rows.setdefault(step, {}).update(metrics)
+
+
+@pytest.mark.parametrize("every", [1, 3])
+def test_fast_path_logs_what_the_reference_logs(every):
+    """Logging only on the steps the Trainer writes leaves the logger's contents unchanged."""
+    batches = [make_batch(32) for _ in range(7)]
+    rows = []
+    for reference in (False, True):
+        torch.manual_seed(0)
+        module, recorder = HBC(4, 2, dropout=0.0), _Recorder()
+        trainer = L.Trainer(
+            max_steps=len(batches),
+            logger=recorder,
+            log_every_n_steps=every,
+            enable_checkpointing=False,
+            enable_progress_bar=False,
+            enable_model_summary=False,
+        )
+        with fast.reference_path() if reference else nullcontext():
+            trainer.fit(module, DataLoader(batches, batch_size=None))
+        rows.append(recorder.rows)
+    fast_rows, reference_rows = rows
+    assert fast_rows.keys() == reference_rows.keys() and len(fast_rows) == 7 // every
+    for step, row in reference_rows.items():
+        assert fast_rows[step].keys() == row.keys() and "train/loss" in row
+        for tag, value in row.items():
+            assert fast_rows[step][tag] == pytest.approx(value, rel=1e-4), (step, tag)

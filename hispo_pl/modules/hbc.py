@@ -87,12 +87,24 @@ class GoalConditionedBC(L.LightningModule):
 
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
         losses = self.losses(batch)
-        self.log_dict(
-            {f"{self.log_prefix}train/{k}": v.detach() for k, v in losses.items()},
-            prog_bar=True,
-            batch_size=len(batch["action"]),
-        )
+        if self._step_reaches_logger():
+            self.log_dict(
+                {f"{self.log_prefix}train/{k}": v.detach() for k, v in losses.items()},
+                prog_bar=True,
+                batch_size=len(batch["action"]),
+            )
         return losses["loss"]
+
+    def _step_reaches_logger(self) -> bool:
+        """Whether the Trainer writes this step's logged values (every ``log_every_n_steps``
+        steps, and when stopping): logging only then skips the per-step bookkeeping of
+        ``self.log`` while the logger gets the same values. The progress bar's losses then
+        change on those steps too. Always true without a Trainer or on the reference path."""
+        trainer = self._trainer
+        if trainer is None or not fast.enabled() or trainer.fast_dev_run:
+            return True
+        every = trainer.log_every_n_steps
+        return every > 0 and ((self.global_step + 1) % every == 0 or trainer.should_stop)
 
     def configure_optimizers(self):
         params = [p for p in self.parameters() if p.requires_grad]
