@@ -442,7 +442,7 @@ class SubspaceResidualMLP(nn.Module):
         Training on one point (alpha [K], gradients on) mixes each layer's parameters once and
         runs the plain network's fast path (:func:`~hispo_pl.nn.fast.residual_mlp`)."""
         if alpha.dim() == 1 and self.training and torch.is_grad_enabled() and fast.enabled():
-            params = [t for layer in self._layers() for t in layer.mixed(alpha)]
+            params = self._mixed_parameters(alpha)
             shape = (*x.shape[:-1], self.inp_norm.dim)
             masks = self.drop_inp.masks(3, shape, x)
             eps = (self.inp_norm.eps, self.block_norm1.eps, self.block_norm2.eps)
@@ -464,6 +464,25 @@ class SubspaceResidualMLP(nn.Module):
             self.block_norm2,
             self.head,
         )
+
+    def _mixed_parameters(self, alpha: Tensor) -> list[Tensor]:
+        """Every layer's parameters at the point ``alpha`` [K], in :meth:`_layers` order.
+
+        While the weights train (``alpha`` requires grad, every anchor mixed) and all layers
+        are full subspace layers, the whole network is mixed in one product: each anchor's
+        parameters side by side in one row, ``alpha @ rows``, split back into tensors (a few
+        ops instead of a few per layer). Otherwise each layer mixes its own (which also
+        leaves out trailing zero-weighted anchors, see :meth:`SubspaceLayer._used`)."""
+        layers = self._layers()
+        if not alpha.requires_grad or any(isinstance(x, LowRankSubspaceLinear) for x in layers):
+            return [t for layer in layers for t in layer.mixed(alpha)]
+        _check_alpha(alpha, self.n_anchors)
+        lists = [plist for layer in layers for plist in layer._lists()]
+        rows = torch.cat([plist[k].reshape(-1) for k in range(len(alpha)) for plist in lists])
+        mixed = alpha @ rows.view(len(alpha), -1)
+        shapes = [plist[0].shape for plist in lists]
+        parts = mixed.split([math.prod(shape) for shape in shapes])
+        return [part.view(shape) for part, shape in zip(parts, shapes, strict=True)]
 
     @property
     def n_anchors(self) -> int:
