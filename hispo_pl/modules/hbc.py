@@ -8,6 +8,7 @@ import lightning as L
 import torch
 from torch import Tensor, nn
 
+from ..nn import fast
 from ..nn.mlp import GaussianPolicy, feature_dim, goal_features
 
 
@@ -88,18 +89,33 @@ class GoalConditionedBC(L.LightningModule):
 
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
         losses = self.losses(batch)
-        self.log_dict(
-            {f"{self.log_prefix}train/{k}": v.detach() for k, v in losses.items()},
-            prog_bar=True,
-            batch_size=len(batch["action"]),
-        )
+        if self._step_reaches_logger():
+            self.log_dict(
+                {f"{self.log_prefix}train/{k}": v.detach() for k, v in losses.items()},
+                prog_bar=True,
+                batch_size=len(batch["action"]),
+            )
         return losses["loss"]
+
+    def _step_reaches_logger(self) -> bool:
+        """Whether the Trainer writes this step's logged values (every ``log_every_n_steps``
+        steps, and when stopping): logging only then skips the per-step bookkeeping of
+        ``self.log`` while the logger gets the same values. The progress bar's losses then
+        change on those steps too. Always true without a Trainer or on the reference path."""
+        trainer = self._trainer
+        if trainer is None or not fast.enabled() or trainer.fast_dev_run:
+            return True
+        every = trainer.log_every_n_steps
+        return every > 0 and ((self.global_step + 1) % every == 0 or trainer.should_stop)
 
     def configure_optimizers(self):
         params = [p for p in self.parameters() if p.requires_grad]
         if not params:  # a method that does not train on this task (FRZ after its first)
             return None
-        opt = torch.optim.Adam(params, lr=self.lr)
+        # fused: one kernel for every tensor's update (the same update as the per-tensor loop)
+        opt = torch.optim.Adam(params, lr=self.lr, fused=fast.enabled())
+        if fast.enabled():
+            fast.retain_freed_memory()
         steps = self.trainer.max_steps if self.trainer is not None else -1
         if self.lr_schedule == "constant" or steps is None or steps <= 0:
             return opt

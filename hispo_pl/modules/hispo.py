@@ -77,8 +77,8 @@ class HiSPO(GoalConditionedBC):
         alpha_groups: anchor weights drawn per step: the batch is split into this many
             groups, each mixed with its own weights, in one batched forward (per-sample weights
             would need a weight matrix per sample; ``alpha_groups`` = batch size gives exactly
-            that). The default, one draw per step, keeps a step a plain forward: 0.92× HBC's
-            steps/s against 0.62× with 16 groups (``benchmarks/hispo_speed.py``).
+            that). The default, one draw per step, keeps a step a plain forward (the fast
+            training path of :mod:`hispo_pl.nn.fast`); figures in ``docs/performance.md``.
         high_log_std: as in :class:`HBC`: a fixed log-std makes the high policy's loss a
             squared error on the subgoal; ``None`` learns it.
         low_obs: as in :class:`HBC`: whether the low policy sees the observation (``False``:

@@ -17,6 +17,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from hispo_pl.nn import fast
 from hispo_pl.nn.mlp import FastDropout, ResidualMLP, _init_linear
 
 AnchorInit = Literal["mean", "random", "first"]
@@ -175,13 +176,18 @@ class SubspaceLinear(SubspaceLayer):
         [M, ..., in] → [M, ..., out], one batched matmul for the M mixed weights."""
         _check_alpha(alpha, self.n_anchors)
         if alpha.dim() == 1:
-            k = self._used(alpha)
-            weights = torch.stack(list(self.weights)[:k])
-            bias = alpha[:k] @ torch.stack(list(self.biases)[:k])
-            return F.linear(x, torch.einsum("k,koi->oi", alpha[:k], weights), bias)
+            return F.linear(x, *self.mixed(alpha))
         weights, biases = torch.stack(list(self.weights)), torch.stack(list(self.biases))
         weight_t = torch.einsum("mk,koi->mio", alpha, weights)  # [M, in, out]
         return _batched_affine(x, weight_t, alpha @ biases)
+
+    def mixed(self, alpha: Tensor) -> tuple[Tensor, Tensor]:
+        """The weight [out, in] and bias [out] of one point ``alpha`` [K] of the subspace."""
+        _check_alpha(alpha, self.n_anchors)
+        k = self._used(alpha)
+        weights = torch.stack(list(self.weights)[:k])
+        bias = alpha[:k] @ torch.stack(list(self.biases)[:k])
+        return torch.einsum("k,koi->oi", alpha[:k], weights), bias
 
     def extra_repr(self) -> str:
         return (
@@ -326,15 +332,7 @@ class LowRankSubspaceLinear(SubspaceLayer):
         [M, ..., in] → [M, ..., out], one batched matmul for the M mixed weights."""
         _check_alpha(alpha, self.n_anchors)
         if alpha.dim() == 1:
-            k = self._used(alpha)
-            alpha = alpha[:k]
-            bias = alpha @ torch.stack(list(self.biases)[:k])
-            weight = alpha.sum() * self.weight
-            if k > 1:
-                a = torch.cat(list(self.lora_a)[: k - 1], dim=1)
-                b = torch.cat(list(self.lora_b)[: k - 1], dim=0)
-                weight = torch.addmm(weight, a * alpha[1:].repeat_interleave(self.rank), b)
-            return F.linear(x, weight, bias)
+            return F.linear(x, *self.mixed(alpha))
         bias = alpha @ torch.stack(list(self.biases))
         # the K-1 offsets once, then one mix per row as SubspaceLinear does: W_1 weighs Σα
         offsets = [a @ b for a, b in zip(self.lora_a, self.lora_b, strict=True)]
@@ -342,6 +340,19 @@ class LowRankSubspaceLinear(SubspaceLayer):
         coef = torch.cat([alpha.sum(-1, keepdim=True), alpha[:, 1:]], dim=1)
         weight_t = torch.einsum("mk,koi->mio", coef, stacked)  # [M, in, out]
         return _batched_affine(x, weight_t, bias)
+
+    def mixed(self, alpha: Tensor) -> tuple[Tensor, Tensor]:
+        """The weight [out, in] and bias [out] of one point ``alpha`` [K] of the subspace."""
+        _check_alpha(alpha, self.n_anchors)
+        k = self._used(alpha)
+        alpha = alpha[:k]
+        bias = alpha @ torch.stack(list(self.biases)[:k])
+        weight = alpha.sum() * self.weight
+        if k > 1:
+            a = torch.cat(list(self.lora_a)[: k - 1], dim=1)
+            b = torch.cat(list(self.lora_b)[: k - 1], dim=0)
+            weight = torch.addmm(weight, a * alpha[1:].repeat_interleave(self.rank), b)
+        return weight, bias
 
     def extra_repr(self) -> str:
         return (
@@ -378,10 +389,7 @@ class SubspaceLayerNorm(SubspaceLayer):
         [M, ..., dim] → [M, ..., dim]."""
         _check_alpha(alpha, self.n_anchors)
         if alpha.dim() == 1:
-            k = self._used(alpha)
-            gamma = alpha[:k] @ torch.stack(list(self.gammas)[:k])
-            beta = alpha[:k] @ torch.stack(list(self.betas)[:k])
-            return F.layer_norm(x, (self.dim,), gamma, beta, self.eps)
+            return F.layer_norm(x, (self.dim,), *self.mixed(alpha), self.eps)
         gammas, betas = torch.stack(list(self.gammas)), torch.stack(list(self.betas))
         m = alpha.shape[0]
         normed = F.layer_norm(x, (self.dim,), eps=self.eps)
@@ -391,6 +399,13 @@ class SubspaceLayerNorm(SubspaceLayer):
             raise ValueError(f"x has leading dim {x.shape[0]} but alpha has {m} rows")
         shape = (m,) + (1,) * (normed.dim() - 2) + (self.dim,)
         return torch.addcmul((alpha @ betas).view(shape), normed, (alpha @ gammas).view(shape))
+
+    def mixed(self, alpha: Tensor) -> tuple[Tensor, Tensor]:
+        """The affine γ, β [dim] of one point ``alpha`` [K] of the subspace."""
+        _check_alpha(alpha, self.n_anchors)
+        k = self._used(alpha)
+        gamma = alpha[:k] @ torch.stack(list(self.gammas)[:k])
+        return gamma, alpha[:k] @ torch.stack(list(self.betas)[:k])
 
     def extra_repr(self) -> str:
         return f"{self.dim}, eps={self.eps}, n_anchors={self.n_anchors}"
@@ -422,12 +437,52 @@ class SubspaceResidualMLP(nn.Module):
         self.drop_out = FastDropout(dropout)
 
     def forward(self, x: Tensor, alpha: Tensor) -> Tensor:
-        """alpha [K]: x [B, in] → [B, out]. alpha [M, K]: x [B, in] or [M, B, in] → [M, B, out]."""
+        """alpha [K]: x [B, in] → [B, out]. alpha [M, K]: x [B, in] or [M, B, in] → [M, B, out].
+
+        Training on one point (alpha [K], gradients on) mixes each layer's parameters once and
+        runs the plain network's fast path (:func:`~hispo_pl.nn.fast.residual_mlp`)."""
+        if alpha.dim() == 1 and self.training and torch.is_grad_enabled() and fast.enabled():
+            params = self._mixed_parameters(alpha)
+            shape = (*x.shape[:-1], self.inp_norm.dim)
+            masks = self.drop_inp.masks(3, shape, x)
+            eps = (self.inp_norm.eps, self.block_norm1.eps, self.block_norm2.eps)
+            return fast.residual_mlp(x, params, masks, eps)
         h = self.drop_inp(self.act(self.inp_norm(self.inp_linear(x, alpha), alpha)))
         b = self.drop_block(self.act(self.block_norm1(self.block_linear1(h, alpha), alpha)))
         b = self.block_norm2(self.block_linear2(b, alpha), alpha)
         h = self.drop_out(self.act(h + b))
         return self.head(h, alpha)
+
+    def _layers(self) -> tuple[SubspaceLayer, ...]:
+        """The layers in :func:`~hispo_pl.nn.fast.residual_mlp`'s parameter order."""
+        return (
+            self.inp_linear,
+            self.inp_norm,
+            self.block_linear1,
+            self.block_norm1,
+            self.block_linear2,
+            self.block_norm2,
+            self.head,
+        )
+
+    def _mixed_parameters(self, alpha: Tensor) -> list[Tensor]:
+        """Every layer's parameters at the point ``alpha`` [K], in :meth:`_layers` order.
+
+        While the weights train (``alpha`` requires grad, every anchor mixed) and all layers
+        are full subspace layers, the whole network is mixed in one product: each anchor's
+        parameters side by side in one row, ``alpha @ rows``, split back into tensors (a few
+        ops instead of a few per layer). Otherwise each layer mixes its own (which also
+        leaves out trailing zero-weighted anchors, see :meth:`SubspaceLayer._used`)."""
+        layers = self._layers()
+        if not alpha.requires_grad or any(isinstance(x, LowRankSubspaceLinear) for x in layers):
+            return [t for layer in layers for t in layer.mixed(alpha)]
+        _check_alpha(alpha, self.n_anchors)
+        lists = [plist for layer in layers for plist in layer._lists()]
+        rows = torch.cat([plist[k].reshape(-1) for k in range(len(alpha)) for plist in lists])
+        mixed = alpha @ rows.view(len(alpha), -1)
+        shapes = [plist[0].shape for plist in lists]
+        parts = mixed.split([math.prod(shape) for shape in shapes])
+        return [part.view(shape) for part, shape in zip(parts, shapes, strict=True)]
 
     @property
     def n_anchors(self) -> int:
