@@ -60,6 +60,9 @@ class TaskDataModule(L.LightningDataModule):
             fixed seed): the subspace search, ``L_curr`` and the zero-shot test score on them,
             so that a decision measures how a policy generalises, not how well it memorised.
             0 trains on every episode and scores decisions on training data (the paper).
+        transitions: batches also hold ``next_observation`` and ``next_position`` (the next
+            row of the episode), for methods that learn a critic (CSP); off by default, so
+            other methods' batches are unchanged.
     """
 
     def __init__(
@@ -76,6 +79,7 @@ class TaskDataModule(L.LightningDataModule):
         stream: str | list[str] | None = None,
         replay: bool = False,
         holdout: float = 0.1,
+        transitions: bool = False,
     ):
         super().__init__()
         if not 0.0 <= holdout < 1.0:
@@ -102,6 +106,7 @@ class TaskDataModule(L.LightningDataModule):
         self.seed = seed
         self.replay = replay
         self.holdout = holdout
+        self.transitions = transitions
         self.data: EpisodeArrays | None = None  # every episode of the task
         self.splits: dict[Split, EpisodeArrays] = {}  # "train" and "heldout" parts of data
         self.replayed: list[tuple[EpisodeArrays, HERConfig]] = []
@@ -171,14 +176,18 @@ class TaskDataModule(L.LightningDataModule):
         sampler (independent of the training stream): what task-end callbacks score candidates
         on (``heldout``) or measure a Fisher on (``train``)."""
         data = self.splits[split]
-        sampler = HERSampler(data, self.her, batch_size or self.batch_size, seed=seed)
+        sampler = HERSampler(
+            data, self.her, batch_size or self.batch_size, seed=seed, transitions=self.transitions
+        )
         return [{k: v.to(device) for k, v in sampler.sample().items()} for _ in range(n)]
 
     def train_dataloader(self) -> DataLoader:
-        sampler = HERSampler(self.splits["train"], self.her, self.batch_size, seed=self.seed)
+        sampler = HERSampler(
+            self.splits["train"], self.her, self.batch_size, self.seed, self.transitions
+        )
         if self.replayed:
             earlier = [
-                HERSampler(data, her, seed=self.seed + 1 + k)
+                HERSampler(data, her, seed=self.seed + 1 + k, transitions=self.transitions)
                 for k, (data, her) in enumerate(self.replayed)
             ]
             sampler = MixedSampler([sampler, *earlier], self.batch_size)

@@ -72,11 +72,22 @@ class HERSampler:
 
     Each batch is a dict of float32 tensors: ``observation`` [B, obs], ``position`` [B, 2],
     ``goal`` [B, 2] (a future achieved position), ``subgoal`` [B, 2] (``waysteps`` ahead)
-    and ``action`` [B, act].
+    and ``action`` [B, act]. With ``transitions=True`` (opt-in, for critics) also
+    ``next_observation`` and ``next_position``: row i + 1 of the same episode (a sampled row
+    always has one, since the final row of an episode carries no action). The option draws
+    nothing more, so the other keys are the same batch for batch either way.
     """
 
-    def __init__(self, data: EpisodeArrays, cfg: HERConfig, batch_size: int = 1024, seed: int = 0):
+    def __init__(
+        self,
+        data: EpisodeArrays,
+        cfg: HERConfig,
+        batch_size: int = 1024,
+        seed: int = 0,
+        transitions: bool = False,
+    ):
         self.cfg = cfg
+        self.transitions = transitions
         self.batch_size = batch_size
         self.rng = np.random.default_rng(seed)
         self._obs = torch.from_numpy(np.ascontiguousarray(data.observations, dtype=np.float32))
@@ -91,13 +102,17 @@ class HERSampler:
         i = self._index[self.rng.integers(0, len(self._index), n)]
         goal, subgoal = relabel_indices(i, self._end, self.cfg, self.rng, self._segment_end)
         i, goal, subgoal = (torch.from_numpy(x) for x in (i, goal, subgoal))
-        return {
+        batch = {
             "observation": self._obs[i],
             "position": self._pos[i],
             "goal": self._pos[goal],
             "subgoal": self._pos[subgoal],
             "action": self._act[i],
         }
+        if self.transitions:
+            batch["next_observation"] = self._obs[i + 1]
+            batch["next_position"] = self._pos[i + 1]
+        return batch
 
 
 def split_evenly(total: int, parts: int) -> list[int]:
