@@ -41,6 +41,12 @@ class CriticConfig:
             raise ValueError(
                 f"unknown critic setting(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}"
             )
+        for f in fields(cls):  # a YAML or CLI parser may hand integers over as floats
+            value = values.get(f.name)
+            if f.type == "int" and isinstance(value, float):
+                if not value.is_integer():
+                    raise ValueError(f"critic setting {f.name} must be an integer, got {value}")
+                values[f.name] = int(value)
         return cls(**values)
 
 
