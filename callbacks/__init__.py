@@ -1,11 +1,14 @@
 """Callbacks that carry out the method (shipped as ``hispo_pl.callbacks``)."""
 
+from .critic import CriticEvaluation, CriticPruning
 from .networks import TaskNetworks, WeightConsolidation
 from .rollout import RolloutEvaluation
 from .subspace import AnchorExtension, DirichletEvaluation, SubspacePruning, ZeroShotTransfer
 
 __all__ = [
     "AnchorExtension",
+    "CriticEvaluation",
+    "CriticPruning",
     "DirichletEvaluation",
     "RolloutEvaluation",
     "SubspacePruning",

@@ -18,6 +18,20 @@ def keep_previous(l_prev: float, l_curr: float, eps: float) -> bool:
     return l_prev <= (1.0 + eps) * l_curr
 
 
+def critic_extends(w_new: float, w_old: float, eps: float) -> bool:
+    """CSP's rule: keep the new anchor iff the critic values the best point of the grown
+    subspace clearly above the best of the previous one, ``W_new > (1 + eps) · W_old``.
+
+    Written for values of any sign as ``W_new > W_old + eps · |W_old|``: the paper's form
+    when ``W_old >= 0`` (a sparse reward in [0, 1] gives non-negative values, but a learned
+    critic may dip below 0), and still "better by a share eps of the old value's size" when
+    ``W_old < 0``, where ``(1 + eps) · W_old`` would ask for less than ``W_old`` itself.
+    """
+    if eps < 0:
+        raise ValueError(f"eps must be non-negative, got {eps}")
+    return w_new > w_old + eps * abs(w_old)
+
+
 def decided_by_budget(improvement: float | None, eps: float) -> bool:
     """Whether the newest anchor was still improving by more than the tolerance over the
     last window of its training (``improvement = L_window / L_curr − 1``): a longer budget

@@ -10,7 +10,7 @@ metric. Values stay in the units of ``R`` (fractions 0-1); multiply by 100 for t
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -97,16 +97,29 @@ def memory_ratio(stored_bytes: int, reference_bytes: int) -> float:
     return stored_bytes / reference_bytes
 
 
+@runtime_checkable
+class KeepsDecisionState(Protocol):
+    """A module that stores state used only to make its decisions, never to act (CSP's
+    critic): it travels in checkpoints but is not part of the model MEM measures."""
+
+    def decision_only_state(self) -> tuple[str, ...]:
+        """Prefixes of the parameter and buffer names to leave out (e.g. ``("critic.",)``)."""
+        ...
+
+
 def module_bytes(module: torch.nn.Module, include_buffers: bool = True) -> int:
     """Bytes held by a module's parameters (and buffers): Σ numel × element_size.
 
     Buffers (e.g. normalisation statistics, subspace anchors kept as buffers) are part of what
-    must be stored per model, hence counted by default.
+    must be stored per model, hence counted by default. What a module declares decision-only
+    (:class:`KeepsDecisionState`, e.g. CSP's critic) is left out: MEM measures the policy
+    that acts on every task, as the paper's CSP counts its policy anchors only.
     """
-    tensors = list(module.parameters())
+    skip = module.decision_only_state() if isinstance(module, KeepsDecisionState) else ()
+    named = list(module.named_parameters())
     if include_buffers:
-        tensors += list(module.buffers())
-    return int(sum(t.numel() * t.element_size() for t in tensors))
+        named += list(module.named_buffers())
+    return int(sum(t.numel() * t.element_size() for name, t in named if not name.startswith(skip)))
 
 
 def results_row_table(R: ArrayLike) -> str:

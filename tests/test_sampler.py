@@ -282,3 +282,19 @@ def test_sampler_uses_segment_ends(tmp_path):
     rows = batch["position"][:, 0].long().numpy()
     goal_rows = batch["goal"][:, 0].long().numpy()
     assert (goal_rows <= data.segment_end[rows]).all()
+
+
+def test_transitions_add_the_next_row_and_leave_the_batch_unchanged():
+    data = _indexed_dataset()
+    cfg = HERConfig(waysteps=5, temperature=10.0)
+    plain = HERSampler(data, cfg, batch_size=512, seed=7)
+    with_next = HERSampler(data, cfg, batch_size=512, seed=7, transitions=True)
+    for _ in range(2):  # the option draws nothing more: every batch stays the same
+        a, b = plain.sample(), with_next.sample()
+        assert set(b) - set(a) == {"next_observation", "next_position"}
+        for key in a:
+            assert torch.equal(a[key], b[key]), key
+        i = b["observation"][:, 0].numpy().astype(np.int64)
+        np.testing.assert_array_equal(b["next_observation"].numpy(), data.observations[i + 1])
+        np.testing.assert_array_equal(b["next_position"].numpy(), data.positions[i + 1])
+        assert np.all(i + 1 <= data.episode_end[i])  # the next row is in the same episode

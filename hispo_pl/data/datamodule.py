@@ -60,6 +60,9 @@ class TaskDataModule(L.LightningDataModule):
             fixed seed): the subspace search, ``L_curr`` and the zero-shot test score on them,
             so that a decision measures how a policy generalises, not how well it memorised.
             0 trains on every episode and scores decisions on training data (the paper).
+        transitions: batches also hold ``next_observation`` and ``next_position`` (the next
+            row of the episode), for methods that learn a critic (CSP); off by default, so
+            other methods' batches are unchanged.
     """
 
     def __init__(
@@ -76,6 +79,7 @@ class TaskDataModule(L.LightningDataModule):
         stream: str | list[str] | None = None,
         replay: bool = False,
         holdout: float = 0.1,
+        transitions: bool = False,
     ):
         super().__init__()
         if not 0.0 <= holdout < 1.0:
@@ -102,6 +106,7 @@ class TaskDataModule(L.LightningDataModule):
         self.seed = seed
         self.replay = replay
         self.holdout = holdout
+        self.transitions = transitions
         self.data: EpisodeArrays | None = None  # every episode of the task
         self.splits: dict[Split, EpisodeArrays] = {}  # "train" and "heldout" parts of data
         self.replayed: list[tuple[EpisodeArrays, HERConfig]] = []
@@ -161,7 +166,9 @@ class TaskDataModule(L.LightningDataModule):
 
     def _sampler(self, data: EpisodeArrays, her: HERConfig, batch_size: int, seed: int):
         step = self.task.env_family.step_seconds
-        return HERSampler(data, her, batch_size, seed=seed, step_seconds=step)
+        return HERSampler(
+            data, her, batch_size, seed=seed, step_seconds=step, transitions=self.transitions
+        )
 
     def fixed_batches(
         self,

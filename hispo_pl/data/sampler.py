@@ -74,7 +74,10 @@ class HERSampler:
     ``goal`` [B, 2] (a future achieved position), ``subgoal`` [B, 2] (``waysteps`` ahead),
     ``velocity`` [B, 2] (the last position step over ``step_seconds``, 0 at an episode's first
     row: what a rollout can compute from the positions it has seen, see
-    :func:`position_velocity`) and ``action`` [B, act].
+    :func:`position_velocity`) and ``action`` [B, act]. With ``transitions=True`` (opt-in, for
+    critics) also ``next_observation`` and ``next_position``: row i + 1 of the same episode (a
+    sampled row always has one, since the final row of an episode carries no action). The
+    option draws nothing more, so the other keys are the same batch for batch either way.
     """
 
     def __init__(
@@ -84,8 +87,10 @@ class HERSampler:
         batch_size: int = 1024,
         seed: int = 0,
         step_seconds: float = 1.0,
+        transitions: bool = False,
     ):
         self.cfg = cfg
+        self.transitions = transitions
         self.batch_size = batch_size
         self.rng = np.random.default_rng(seed)
         self._obs = torch.from_numpy(np.ascontiguousarray(data.observations, dtype=np.float32))
@@ -105,7 +110,7 @@ class HERSampler:
         goal, subgoal = relabel_indices(i, self._end, self.cfg, self.rng, self._segment_end)
         i, goal, subgoal = (torch.from_numpy(x) for x in (i, goal, subgoal))
         position = self._pos[i]
-        return {
+        batch = {
             "observation": self._obs[i],
             "position": position,
             "velocity": position_velocity(
@@ -115,6 +120,10 @@ class HERSampler:
             "subgoal": self._pos[subgoal],
             "action": self._act[i],
         }
+        if self.transitions:
+            batch["next_observation"] = self._obs[i + 1]
+            batch["next_position"] = self._pos[i + 1]
+        return batch
 
 
 def position_velocity(position, previous, step_seconds: float):

@@ -1,6 +1,7 @@
 """LightningModules: the backbones and the continual methods built on them."""
 
 from .columns import GrowingPolicy, NetworkPerTask
+from .csp import CSP, CriticScoredSubspace
 from .cspo import CSPO
 from .hbc import BC, HBC, GoalConditionedBC
 from .hilow import HiLOW
@@ -10,7 +11,9 @@ from .regularized import ConsolidatingPolicy, RegularizedFineTuning
 
 __all__ = [
     "BC",
+    "CSP",
     "CSPO",
+    "CriticScoredSubspace",
     "ConsolidatingPolicy",
     "GoalConditionedBC",
     "GrowingPolicy",

@@ -1,0 +1,259 @@
+"""CSP's callbacks: at the end of a task, search the old and the grown subspace for the weights
+the critic values most (:class:`CriticEvaluation`), then keep or prune the new anchor by CSP's
+rule (:class:`CriticPruning`). Anchors are added by HiSPO's
+:class:`~hispo_pl.callbacks.AnchorExtension`; the rule lives in :mod:`hispo_pl.decisions`."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import lightning as L
+import torch
+from torch import Tensor
+from typing_extensions import override
+
+from ..decisions import critic_extends, extended_subspace_candidates, previous_subspace_candidates
+from ..modules.csp import CriticScoredSubspace
+from ..nn import eval_mode
+from ..search import RaceOutcome, race_candidates, race_subspace
+from .subspace import log_decisions
+
+
+def _require_critic(pl_module: L.LightningModule, who: str) -> CriticScoredSubspace:
+    if not isinstance(pl_module, CriticScoredSubspace):
+        raise TypeError(
+            f"{who} needs a subspace of policies with a critic (the CriticScoredSubspace "
+            f"protocol, e.g. hispo_pl.modules.CSP), got {type(pl_module).__name__}"
+        )
+    return pl_module
+
+
+@dataclass
+class CriticSearchResult:
+    """What the critic search found in one subspace on the current task's held-out episodes.
+
+    ``w_curr`` / ``alpha_curr``: the best point of the grown subspace (the paper's
+    ``W(α_new)``, ``α_new``); ``w_prev`` / ``alpha_prev``: the best of the previous subspace
+    (``W(α_old)``, ``α_old``, last weight 0). ``l_curr`` / ``l_prev``: the imitation loss of
+    those two points (what CSPO's rule would compare), for reading the critic's choices
+    against the data. ``diagnostic``: :meth:`~hispo_pl.modules.CSP.critic_diagnostic` at
+    ``alpha_curr``, averaged over the batches.
+    """
+
+    w_curr: float
+    alpha_curr: list[float]
+    w_prev: float | None = None
+    alpha_prev: list[float] | None = None
+    l_curr: float | None = None
+    l_prev: float | None = None
+    diagnostic: dict[str, float] = field(default_factory=dict)
+
+
+class CriticEvaluation(L.Callback):
+    """At the end of a task, race Dirichlet candidates of each subspace by the critic's value
+    of the mixed policy, ``W(α) = mean_s Q(s, g, π_α(s, g), α)``, on the task's held-out
+    episodes (the same batches for every candidate), as
+    :class:`~hispo_pl.callbacks.DirichletEvaluation` races them by loss.
+
+    Candidates of the grown subspace: the trained weights, the new anchor alone and
+    ``n_candidates`` Dirichlet(1) draws over every anchor; of the previous subspace:
+    ``n_candidates`` draws over the older anchors (the new one at 0). Results are kept in
+    ``results`` for :class:`CriticPruning`. The action-dependence diagnostic is measured at
+    the best point of the grown subspace.
+
+    Args:
+        n_candidates: Dirichlet draws per subspace (old and grown each).
+        n_batches: held-out batches the survivors are valued on.
+        survivors: candidates kept after the probe (``None``: value every one on every batch).
+        probe_samples: samples (from the first batch) every candidate is ranked on.
+        diagnostic_actions: uniform actions per state in the diagnostic.
+        seed: seeds the batches, the draws and the diagnostic's actions.
+
+    Example:
+        >>> from hispo_pl.callbacks import AnchorExtension, CriticEvaluation, CriticPruning
+        >>> callbacks = [AnchorExtension(), CriticEvaluation(), CriticPruning(eps=0.1)]
+    """
+
+    def __init__(
+        self,
+        n_candidates: int = 1024,
+        n_batches: int = 16,
+        survivors: int | None = 32,
+        probe_samples: int = 256,
+        diagnostic_actions: int = 16,
+        seed: int = 0,
+    ):
+        if n_candidates < 1 or n_batches < 1 or diagnostic_actions < 1:
+            raise ValueError(
+                "n_candidates, n_batches and diagnostic_actions must be positive, got "
+                f"{n_candidates}, {n_batches}, {diagnostic_actions}"
+            )
+        self.n_candidates, self.n_batches, self.survivors = n_candidates, n_batches, survivors
+        self.probe_samples, self.diagnostic_actions, self.seed = (
+            probe_samples,
+            diagnostic_actions,
+            seed,
+        )
+        self.results: dict[str, CriticSearchResult] = {}
+
+    @override
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        _require_critic(pl_module, type(self).__name__)
+        self.results = {}
+
+    @override
+    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self.results = self._run_search(trainer, pl_module)
+
+    @torch.no_grad()
+    def _run_search(self, trainer: L.Trainer, module) -> dict[str, CriticSearchResult]:
+        device = module.device
+        batches = trainer.datamodule.fixed_batches(self.n_batches, self.seed, device=device)
+        probe = {k: v[: self.probe_samples] for k, v in batches[0].items()}
+        generator = torch.Generator().manual_seed(self.seed)
+
+        def race(cands: Tensor) -> RaceOutcome:
+            def score(alphas: Tensor, batch: dict[str, Tensor]) -> Tensor:
+                return -module.critic_values(alphas, batch)  # the race minimises
+
+            return race_candidates(score, cands, batches, probe, self.survivors)
+
+        results = {}
+        with eval_mode(module):
+            for name in module.subspace_names:
+                if module.transferred(name):
+                    continue
+                trained = module.current_alpha(name).to(device)
+                k = module.n_anchors(name)
+                grown = (
+                    extended_subspace_candidates(self.n_candidates, trained, generator)
+                    if k > 1
+                    else trained[None]
+                ).to(device)
+                best = race(grown)
+                res = CriticSearchResult(-best.best_loss, grown[best.best].tolist())
+                chosen = [res.alpha_curr]
+                if k > 1:
+                    previous = previous_subspace_candidates(self.n_candidates, k, generator)
+                    previous = previous.to(device)
+                    best_prev = race(previous)
+                    res.w_prev = -best_prev.best_loss
+                    res.alpha_prev = previous[best_prev.best].tolist()
+                    chosen.append(res.alpha_prev)
+                imitation = race_subspace(
+                    module, name, torch.tensor(chosen, device=device), batches
+                ).losses  # exhaustive: in the order given
+                res.l_curr = float(imitation[0])
+                res.l_prev = float(imitation[1]) if k > 1 else None
+                res.diagnostic = self._diagnostic(module, grown[best.best], batches, generator)
+                results[name] = res
+        return results
+
+    def _diagnostic(self, module, alpha: Tensor, batches, generator) -> dict[str, float]:
+        per_batch = [
+            module.critic_diagnostic(alpha, b, self.diagnostic_actions, generator) for b in batches
+        ]
+        return {k: sum(d[k] for d in per_batch) / len(per_batch) for k in per_batch[0]}
+
+
+def _check_critic_order(callbacks: list[L.Callback], pruning: CriticPruning) -> CriticEvaluation:
+    """Task-end hooks run in list order: search, then prune, then evaluate the result."""
+    from .rollout import RolloutEvaluation
+
+    pos = {id(cb): i for i, cb in enumerate(callbacks)}
+    search = [cb for cb in callbacks if isinstance(cb, CriticEvaluation)]
+    if not search or pos[id(search[0])] > pos[id(pruning)]:
+        raise ValueError("CriticPruning needs a CriticEvaluation callback listed before it")
+    if any(
+        isinstance(cb, RolloutEvaluation) and pos[id(cb)] < pos[id(pruning)] for cb in callbacks
+    ):
+        raise ValueError(
+            "list RolloutEvaluation after CriticPruning: it must see the pruned policy"
+        )
+    return search[0]
+
+
+class CriticPruning(L.Callback):
+    """At the end of a task, per subspace, CSP's rule: keep the new anchor iff
+    ``W(α_new) > (1 + eps) · W(α_old)`` (:func:`hispo_pl.decisions.critic_extends`, which
+    also covers negative values) and store ``α_new`` for the task, else prune it and store
+    ``α_old``. Decisions, the critic's values, the imitation losses of the two points and the
+    action-dependence diagnostic go to ``decisions.jsonl`` and TensorBoard
+    (``critic/<subspace>/...`` at the task's step).
+
+    Must come after :class:`CriticEvaluation` and before ``RolloutEvaluation`` (checked in
+    ``setup``).
+
+    Args:
+        eps: the tolerance ε of the rule.
+    """
+
+    def __init__(self, eps: float = 0.1):
+        if eps < 0:
+            raise ValueError(f"eps must be non-negative, got {eps}")
+        self.eps = eps
+        self._search: CriticEvaluation | None = None
+
+    @override
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        _require_critic(pl_module, type(self).__name__)
+        self._search = _check_critic_order(trainer.callbacks, self)
+
+    @override
+    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        decisions = [
+            self._decide(pl_module, name, res) for name, res in self._search.results.items()
+        ]
+        pl_module.freeze_all()
+        log_decisions(trainer, pl_module, decisions)
+        _log_critic(trainer, pl_module, decisions)
+
+    def _decide(self, module, name: str, res: CriticSearchResult) -> dict:
+        task = module.task_index
+        if res.w_prev is None:
+            module.set_task_alpha(task, name, torch.tensor(res.alpha_curr))
+            action = "first"
+        elif critic_extends(res.w_curr, res.w_prev, self.eps):
+            module.set_task_alpha(task, name, torch.tensor(res.alpha_curr))
+            action = "keep"
+        else:
+            module.prune_last_anchor(name)
+            module.set_task_alpha(task, name, torch.tensor(res.alpha_prev[:-1]))
+            action = "prune"
+        record = asdict(res)
+        diagnostic = record.pop("diagnostic")
+        return {
+            "task": task,
+            "subspace": name,
+            "decision": action,
+            "rule": "critic",
+            "eps": self.eps,
+            "anchors": module.n_anchors(name),
+            **record,
+            **diagnostic,
+        }
+
+
+CRITIC_TAGS = {
+    "w_curr": "W_curr",
+    "w_prev": "W_prev",
+    "q_action_std": "q_action_std",
+    "q_state_std": "q_state_std",
+    "action_dependence": "action_dependence",
+    "q_data": "q_data",
+    "q_policy": "q_policy",
+    "q_uniform": "q_uniform",
+}
+
+
+def _log_critic(trainer: L.Trainer, module, decisions: list[dict]) -> None:
+    """The critic's values and diagnostic as ``critic/<subspace>/<tag>`` at the task's step."""
+    if trainer.logger is None:
+        return
+    metrics = {
+        f"critic/{d['subspace']}/{tag}": d[key]
+        for d in decisions
+        for key, tag in CRITIC_TAGS.items()
+        if d.get(key) is not None
+    }
+    trainer.logger.log_metrics(metrics, step=module.task_index + 1)

@@ -1,0 +1,62 @@
+"""The documentation holds: every hispo-pl command the README shows parses, every relative link
+resolves, and every report embedded in docs/results.md is what its committed run files give."""
+
+from __future__ import annotations
+
+import re
+import shlex
+from pathlib import Path
+
+import pytest
+
+from hispo_pl.benchmark import embed_reports
+from hispo_pl.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+LINK = re.compile(r"\]\(([^)\s]+)\)")
+
+
+def _readme_commands() -> list[str]:
+    """``hispo-pl`` lines of the README's bash blocks, continuation lines joined."""
+    text = (ROOT / "README.md").read_text()
+    commands = []
+    for block in re.findall(r"```bash\n(.*?)```", text, flags=re.S):
+        for line in block.replace("\\\n", " ").splitlines():
+            line = line.split("  #")[0].strip()
+            if line.startswith("hispo-pl "):
+                commands.append(line)
+    return commands
+
+
+def test_readme_shows_commands():
+    verbs = {shlex.split(c)[1] for c in _readme_commands()}
+    assert {"fit", "data", "benchmark", "evaluate", "render"} <= verbs
+
+
+@pytest.mark.parametrize("command", _readme_commands())
+def test_every_readme_command_parses(command, monkeypatch, capsys):
+    monkeypatch.chdir(ROOT)
+    args = shlex.split(command)[1:]
+    args += ["--print_config"] if args[0] == "fit" else ["--help"]
+    with pytest.raises(SystemExit) as exit_:
+        main(args)
+    assert exit_.value.code in (0, None), capsys.readouterr().err
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_relative_links_resolve(page):
+    for target in LINK.findall(page.read_text()):
+        if "://" in target or target.startswith("#") or target.startswith("mailto:"):
+            continue
+        path = (page.parent / target.split("#")[0]).resolve()
+        assert path.exists(), f"{page.relative_to(ROOT)} links to a missing {target}"
+
+
+def test_results_page_equals_its_rebuilt_reports():
+    page = ROOT / "docs" / "results.md"
+    assert "<!-- report: " in page.read_text()
+    assert embed_reports(page, ROOT) == page.read_text(), (
+        "docs/results.md differs from its run files: rebuild it with\n"
+        "  hispo-pl benchmark --report-only --docs docs/results.md"
+    )
