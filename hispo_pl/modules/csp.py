@@ -106,6 +106,7 @@ class CSP(CSPO):
         low_obs: bool = True,
         binary_actions: int = 0,
         low_log_std: float | None = None,
+        low_velocity: bool = False,
         alpha_sampling: AlphaSampling = "dirichlet",
         critic: dict[str, int | float] | None = None,
     ):
@@ -130,6 +131,7 @@ class CSP(CSPO):
             low_obs,
             binary_actions,
             low_log_std,
+            low_velocity,
         )
         self.critic_config = CriticConfig.from_dict(critic)
         self.critic = self._new_critic(self.n_anchors(POLICY))
@@ -227,7 +229,10 @@ class CSP(CSPO):
         high, low = self.policies["high"], self.policies["low"]
         offset, _ = high(HBC.high_input(obs, batch["position"], batch["goal"]), alphas)
         obs = obs.expand(len(alphas), *obs.shape)
-        mean, _ = low(HBC.low_input(obs, offset, self.hparams.low_obs), alphas)
+        velocity = batch["velocity"] if self.hparams.low_velocity else None
+        if velocity is not None:
+            velocity = velocity.expand(len(alphas), *velocity.shape)
+        mean, _ = low(HBC.low_input(obs, offset, self.hparams.low_obs, velocity), alphas)
         return low.act(mean)
 
     def _critic_alpha(self, alphas: Tensor) -> Tensor:
