@@ -141,11 +141,12 @@ def fit_interruptibly(trainer: L.Trainer, module: L.LightningModule, datamodule,
 
 
 def differing_keys(stored: dict, current: dict) -> list[str]:
-    """``key: stored -> current`` for every key whose value differs between two flat
-    fingerprints (a key only one of them has counts as differing)."""
+    """``key: stored -> current`` for every stored key whose value differs now (or is gone).
+    Keys only ``current`` has are settings a newer hispo-pl added; they do not count, so an
+    upgrade does not lock a run out of its own directory."""
     missing = object()
     out = []
-    for key in sorted(set(stored) | set(current)):
+    for key in sorted(stored):
         a, b = stored.get(key, missing), current.get(key, missing)
         if a != b:
             show = lambda v: "(unset)" if v is missing else json.dumps(v)  # noqa: E731
@@ -275,8 +276,9 @@ class ContinualLoop:
                 "choose another run directory (e.g. --trainer.logger.init_args.version)"
             )
         stored = progress.get("fingerprint")
-        if self.fingerprint is not None and stored is not None and stored != self.fingerprint:
-            diff = "\n  ".join(differing_keys(stored, self.fingerprint))
+        differing = differing_keys(stored or {}, self.fingerprint or {})
+        if self.fingerprint is not None and stored is not None and differing:
+            diff = "\n  ".join(differing)
             raise RunDirError(
                 f"{self.run_dir} holds a run with other settings; resuming would mix tasks "
                 f"trained differently. Differing (stored -> now):\n  {diff}\nRerun with the "
