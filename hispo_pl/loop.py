@@ -337,6 +337,9 @@ class ContinualLoop:
                 self._train_task(k, progress)
             except KeyboardInterrupt:
                 kept = f"tasks 1..{k} are finished and kept" if k else "no task had finished"
+                partial = partial_checkpoint_path(self.run_dir, k)
+                if self.checkpoint_every > 0 and partial.exists():
+                    kept += f", task {k + 1} is saved part-way ({partial.name})"
                 raise Interrupted(
                     f"interrupted during task {k + 1} of {len(self.stream)}; {kept} in "
                     f"{self.run_dir}. Rerun the same command to resume."
