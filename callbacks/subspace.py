@@ -326,6 +326,9 @@ class SubspacePruning(L.Callback):
         self, eps_high: float = 0.1, eps_low: float = 0.1, eps: dict[str, float] | None = None
     ):
         self.eps = {"high": eps_high, "low": eps_low, **(eps or {})}
+        bad = {name: e for name, e in self.eps.items() if not e >= 0}
+        if bad:  # checked here, not after a task has trained
+            raise ValueError(f"SubspacePruning tolerances must be >= 0, got {bad}")
         self._search: DirichletEvaluation | None = None
 
     @override

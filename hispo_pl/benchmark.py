@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .io import atomic_write_text
 from .metrics import continual_metrics
 
 RESULTS_FILE = "results.json"  # written by hispo_pl.loop.ContinualLoop (same name there)
@@ -591,6 +592,34 @@ def plot_perf_vs_memory(rows: Sequence[MethodRow], path: Path, stream: str = "")
     return True
 
 
+def unfinished_runs(out: Path) -> list[tuple[str, int, str]]:
+    """(method, seed, status) of every run the benchmark launched (it has a ``run.json``)
+    without a ``results.json``: failed (with its exit status and log), or not finished."""
+    found = []
+    for meta_path in sorted((Path(out) / RUNS_DIR).glob(f"*/seed*/{RUN_FILE}")):
+        seed_dir = meta_path.parent
+        if (seed_dir / RESULTS_FILE).exists():
+            continue
+        try:
+            meta = json.loads(meta_path.read_text())
+            seed = int(seed_dir.name.removeprefix("seed"))
+        except ValueError:
+            continue
+        status = meta.get("status") or "not finished (interrupted, or still running)"
+        found.append((seed_dir.parent.name, seed, status))
+    return found
+
+
+def unfinished_markdown(runs: Sequence[tuple[str, int, str]]) -> str:
+    """The table.md section listing runs without results, so a failed method is never
+    silently missing from the table."""
+    if not runs:
+        return ""
+    lines = ["", "## Runs without results", "", "| method | seed | status |", "|---|---:|---|"]
+    lines += [f"| {method} | {seed} | {status} |" for method, seed, status in runs]
+    return "\n".join(lines) + "\n"
+
+
 def write_report(out: Path, stream: str | None = None) -> list[Path]:
     """Rebuild ``table.md``, ``table.csv``, ``runtime.csv`` and ``perf_vs_memory.png`` in
     ``out`` from every finished run under ``out/runs``. Returns the files written.
@@ -600,7 +629,8 @@ def write_report(out: Path, stream: str | None = None) -> list[Path]:
     """
     out = Path(out)
     records = load_records(out)
-    if not records:
+    missing = unfinished_runs(out)
+    if not records and not missing:
         raise FileNotFoundError(
             f"no finished runs ({RUNS_DIR}/<method>/seed<S>/{RESULTS_FILE}) under {out}"
         )
@@ -610,11 +640,11 @@ def write_report(out: Path, stream: str | None = None) -> list[Path]:
     rows, notes = aggregate(records)
     written = []
     for name, text in (
-        ("table.md", table_markdown(rows, notes, stream)),
+        ("table.md", table_markdown(rows, notes, stream) + unfinished_markdown(missing)),
         ("table.csv", table_csv(rows)),
         ("runtime.csv", runtime_csv(records)),
     ):
-        (out / name).write_text(text)
+        atomic_write_text(out / name, text)
         written.append(out / name)
     decisions = decisions_markdown(records, stream)
     if decisions:
@@ -739,6 +769,7 @@ class Reporter:
             why = f"exit {outcome['returncode']}" + (
                 f", no {RESULTS_FILE}" if outcome["returncode"] == 0 else ""
             )
+            record_status(run, f"failed ({why}); log: {run.log_path}")
             tail = "\n".join("    " + line for line in outcome["log_tail"].splitlines())
             self._write(
                 f"[benchmark] FAILED {run.method} seed {run.seed} ({why}); log: {run.log_path}\n"
@@ -748,6 +779,17 @@ class Reporter:
 
     def close(self) -> None:
         self.bar.close()
+
+
+def record_status(run: PlannedRun, status: str) -> None:
+    """Note a run's outcome in its ``run.json`` (the tables list failed runs with it)."""
+    meta_path = run.run_dir / RUN_FILE
+    try:
+        meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
+        meta["status"] = status
+        atomic_write_text(meta_path, json.dumps(meta, indent=1))
+    except (OSError, ValueError):  # the record is a convenience; the log says the rest
+        pass
 
 
 def run_local(
@@ -829,7 +871,7 @@ def run_ray(
                 outcome = {"returncode": -1, "results": None, "log_tail": f"{e}"}
             if outcome["results"] is not None and not run.results_path.exists():
                 run.run_dir.mkdir(parents=True, exist_ok=True)
-                run.results_path.write_text(json.dumps(outcome["results"], indent=1))
+                atomic_write_text(run.results_path, json.dumps(outcome["results"], indent=1))
             report(run, outcome)
     except KeyboardInterrupt:
         for ref in pending:
@@ -988,7 +1030,7 @@ def pending_runs(runs: Sequence[PlannedRun], stream: str) -> list[PlannedRun]:
             "argv": list(run.argv),
             "command": shlex.join(run.command(sys.executable)),
         }
-        meta_path.write_text(json.dumps(meta, indent=1))
+        atomic_write_text(meta_path, json.dumps(meta, indent=1))
         todo.append(run)
     return todo
 
@@ -1043,10 +1085,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         extra,
     )
     if args.dry_run:
+        from .cli import check_fit_args
+
+        problems = 0
+        checked: dict[str, str | None] = {}
         for run in runs:
             state = "done" if run.results_path.exists() else "to run"
             print(f"[benchmark] {run.name} ({state}): {shlex.join(run.command(sys.executable))}")
-        return 0
+            if run.method not in checked:  # seeds differ only in the seed and run dir
+                checked[run.method] = check_fit_args(list(run.argv[len(FIT_MODULE) :]))
+            if checked[run.method] is not None:
+                problems += 1
+                print(f"[benchmark] {run.name}: invalid: {checked[run.method]}", file=sys.stderr)
+        return 2 if problems else 0
     out.mkdir(parents=True, exist_ok=True)
     stream_name = stream_config.stem
     plan = {
@@ -1057,7 +1108,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "steps_per_task": args.steps_per_task,
         "extra": extra,
     }
-    (out / PLAN_FILE).write_text(json.dumps(plan, indent=1))
+    atomic_write_text(out / PLAN_FILE, json.dumps(plan, indent=1))
 
     todo = pending_runs(runs, stream_name)
     print(

@@ -25,6 +25,8 @@ import torch
 from lightning.pytorch.cli import LightningCLI
 
 from .data.datamodule import TaskDataModule
+from .errors import ConfigError, Interrupted, UserError
+from .io import atomic_write_text
 from .modules.hbc import GoalConditionedBC
 
 
@@ -51,11 +53,34 @@ class HispoCLI(LightningCLI):
             help="streams: results.json of a from-scratch run (SC1/SCN) of the same stream; its "
             "diagonal is R_scratch for FWT",
         )
+        parser.add_argument(
+            "--checkpoint_every",
+            type=int,
+            default=1000,
+            help="streams: save the task in progress every N steps (task_XX.partial.ckpt); a "
+            "rerun resumes it from there (0: only finished tasks are kept)",
+        )
         for dim in ("obs_dim", "action_dim", "goal_dim", "binary_actions"):
             parser.link_arguments(f"data.{dim}", f"model.init_args.{dim}", apply_on="instantiate")
 
+    def _parse_ckpt_path(self) -> None:
+        """Check ``--ckpt_path`` before Lightning reads its hyperparameters: a stream refuses
+        it, and an unreadable file is a user error rather than a traceback."""
+        if not self.config.get("subcommand"):
+            return
+        config = self.config[self.config.subcommand]
+        ckpt_path = config.get("ckpt_path")
+        if ckpt_path and (config.get("data") or {}).get("stream"):
+            validate_config(config.as_dict())  # says how a stream resumes
+        if ckpt_path and Path(ckpt_path).is_file():
+            from .modules.hbc import read_checkpoint
+
+            read_checkpoint(ckpt_path)
+        super()._parse_ckpt_path()
+
     def before_instantiate_classes(self) -> None:
         config = self.config.get(self.subcommand, self.config)
+        validate_config(config.as_dict())
         set_num_threads(config.get("num_threads", 0))
         logger = config.get("trainer", {}).get("logger")
         # a stream's run directory must be the same on a rerun, so that it resumes
@@ -66,8 +91,10 @@ class HispoCLI(LightningCLI):
     def fit(self, model, datamodule, **kwargs) -> None:
         """One task: ``trainer.fit``. A stream: the ContinualLoop, a fresh Trainer per task."""
         if datamodule.stream is None:
+            from .loop import fit_interruptibly
+
             start = time.perf_counter()
-            self.trainer.fit(model, datamodule=datamodule, **kwargs)
+            fit_interruptibly(self.trainer, model, datamodule, **kwargs)
             self.fit_seconds = time.perf_counter() - start
             return
         self.stream_results = run_stream_from_cli(self, model, datamodule)
@@ -92,6 +119,111 @@ class HispoCLI(LightningCLI):
                     print(f"[hispo-pl] TensorBoard logs: {self.trainer.log_dir}")
 
 
+def _config_problems(node, path: str = "") -> list[str]:
+    """Out-of-range values anywhere in a parsed configuration, by key name (model and callback
+    ``init_args`` included): each problem as ``key = value: what is allowed``."""
+    problems: list[str] = []
+    if isinstance(node, dict):
+        for key, value in node.items():
+            problems += _config_problems(value, f"{path}.{key}" if path else str(key))
+        return problems
+    if isinstance(node, list):
+        for i, value in enumerate(node):
+            problems += _config_problems(value, f"{path}[{i}]")
+        return problems
+    if isinstance(node, bool) or not isinstance(node, int | float):
+        return problems
+    key = path.rsplit(".", 1)[-1]
+    parent = path.rsplit(".", 2)[-2] if path.count(".") >= 1 else ""
+    rules = {
+        "batch_size": (lambda v: v >= 1, "must be >= 1"),
+        "steps_per_epoch": (lambda v: v >= 1, "must be >= 1"),
+        "episodes": (lambda v: v >= 1, "must be >= 1"),
+        "n_candidates": (lambda v: v >= 1, "must be >= 1"),
+        "n_batches": (lambda v: v >= 1, "must be >= 1"),
+        "eval_every": (lambda v: v >= 0, "must be >= 0 (0: only at the end)"),
+        "dropout": (lambda v: 0 <= v < 1, "must be in [0, 1)"),
+        "lr": (lambda v: v > 0 and v == v, "must be > 0"),
+    }
+    if key in rules:
+        ok, allowed = rules[key]
+    elif key.startswith("eps") or parent == "eps":
+        ok, allowed = (lambda v: v >= 0), "must be >= 0"
+    else:
+        return problems
+    if not ok(node):
+        problems.append(f"{path} = {node}: {allowed}")
+    return problems
+
+
+def validate_config(config: dict) -> None:
+    """Refuse, before any data is made or any step trained, values that would train nothing
+    or train wrongly (batch 0, no steps, dropout 1, a negative tolerance...), and options that
+    a stream would silently ignore.
+
+    Raises:
+        ConfigError: one message listing every problem.
+    """
+    problems = _config_problems({k: v for k, v in config.items() if k != "config"})
+    trainer = config.get("trainer") or {}
+    max_steps, max_epochs = trainer.get("max_steps"), trainer.get("max_epochs")
+    by_epochs = max_steps == -1 and max_epochs is not None and max_epochs > 0
+    if max_steps is not None and max_steps < 1 and not by_epochs:
+        problems.append(f"trainer.max_steps = {max_steps}: must be >= 1 (gradient steps per task)")
+    if (config.get("checkpoint_every") or 0) < 0:
+        problems.append(f"checkpoint_every = {config['checkpoint_every']}: must be >= 0 (0: off)")
+    if (config.get("data") or {}).get("stream") and config.get("ckpt_path"):
+        problems.append(
+            f"ckpt_path = {config['ckpt_path']}: a stream resumes by itself; rerun the same "
+            "command without --ckpt_path (its run directory holds the finished tasks)"
+        )
+    if problems:
+        raise ConfigError("invalid configuration:\n  " + "\n  ".join(problems))
+
+
+# settings that change neither what a run trains nor what it measures: a rerun may change them
+NOT_IN_FINGERPRINT = (
+    "config",
+    "num_threads",
+    "ckpt_path",
+    "scratch_results",  # FWT's reference, applied when the results are written
+    "checkpoint_every",
+    "trainer.logger",
+    "trainer.enable_progress_bar",
+    "trainer.enable_model_summary",
+    "trainer.log_every_n_steps",
+    "trainer.default_root_dir",
+    "trainer.enable_checkpointing",
+    "trainer.profiler",
+)
+
+
+def _plain(config: dict) -> dict:
+    """A parsed configuration as JSON values (paths and other objects as strings)."""
+    return json.loads(json.dumps(config, default=str))
+
+
+def run_fingerprint(config: dict) -> dict:
+    """Every setting that defines a stream run, flat (``model.init_args.lr: 0.001``,
+    ``trainer.callbacks[1].init_args.eps_high: 0.1``), without :data:`NOT_IN_FINGERPRINT`."""
+    flat: dict = {}
+
+    def walk(node, path: str) -> None:
+        if any(path == k or path.startswith(k + ".") for k in NOT_IN_FINGERPRINT):
+            return
+        if isinstance(node, dict):
+            for key, value in node.items():
+                walk(value, f"{path}.{key}" if path else str(key))
+        elif isinstance(node, list) and any(isinstance(v, dict | list) for v in node):
+            for i, value in enumerate(node):
+                walk(value, f"{path}[{i}]")
+        else:
+            flat[path] = node
+
+    walk(_plain(config), "")
+    return flat
+
+
 def write_task_result(log_dir: str, model, task, callback, seconds: float) -> None:
     """``result.json`` beside a single-task run's logs: its final evaluation, for tables
     (``benchmarks/single_task_table.py``) without parsing TensorBoard files."""
@@ -102,7 +234,7 @@ def write_task_result(log_dir: str, model, task, callback, seconds: float) -> No
         "seconds": round(seconds, 1),
         **{k: float(v) for k, v in callback.last.items()},
     }
-    (Path(log_dir) / "result.json").write_text(json.dumps(result, indent=2) + "\n")
+    atomic_write_text(Path(log_dir) / "result.json", json.dumps(result, indent=2) + "\n")
 
 
 def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
@@ -136,6 +268,9 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
         R = json.loads(Path(config["scratch_results"]).read_text())["R"]
         scratch = [R[k][k] for k in range(len(R))]
     seed = config.get("seed_everything")  # the int LightningCLI seeded with, or False
+    import yaml
+
+    plain = _plain({k: v for k, v in config.as_dict().items() if k != "config"})
     loop = ContinualLoop(
         datamodule.stream,
         model,
@@ -145,6 +280,9 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
         reference,
         scratch,
         seed=seed if isinstance(seed, int) and not isinstance(seed, bool) else None,
+        fingerprint=run_fingerprint(plain),
+        config_text=yaml.safe_dump(plain, sort_keys=False),
+        checkpoint_every=int(config.get("checkpoint_every") or 0),
     )
     results = loop.run()
     results["run_dir"] = str(run_dir)
@@ -164,6 +302,38 @@ def print_stream_results(results: dict) -> None:
     print(f"[hispo-pl] results: {results['run_dir']}/results.json")
 
 
+def check_fit_args(argv: list[str]) -> str | None:
+    """Whether ``hispo-pl fit`` would accept ``argv`` (``["fit", "--config", ...]``): the
+    configuration is parsed, checked (:func:`validate_config`) and its classes instantiated,
+    without training or touching data. Returns the error message, or None."""
+    import contextlib
+    import io
+
+    args = argv[1:] if argv and argv[0] == "fit" else list(argv)
+    errors = io.StringIO()
+    threads = torch.get_num_threads()
+    try:
+        with contextlib.redirect_stderr(errors), contextlib.redirect_stdout(io.StringIO()):
+            HispoCLI(
+                model_class=GoalConditionedBC,
+                datamodule_class=TaskDataModule,
+                subclass_mode_model=True,
+                args=args,
+                trainer_defaults={"accelerator": "cpu", "devices": 1},
+                save_config_kwargs={"overwrite": True},
+                run=False,
+            )
+    except SystemExit as exit:
+        if exit.code:
+            lines = [ln for ln in errors.getvalue().splitlines() if ln.strip()]
+            return lines[-1] if lines else f"exit {exit.code}"
+    except UserError as err:
+        return str(err)
+    finally:
+        torch.set_num_threads(threads)
+    return None
+
+
 def run_lightning_cli(args: list[str] | None = None) -> HispoCLI:
     return HispoCLI(
         model_class=GoalConditionedBC,
@@ -178,7 +348,7 @@ def run_lightning_cli(args: list[str] | None = None) -> HispoCLI:
 def data_main(argv: list[str]) -> int:
     from .data.datasets import (
         DEFAULT_SEED,
-        dataset_exists,
+        dataset_problem,
         dataset_stats,
         generate_dataset,
         known_dataset_names,
@@ -212,8 +382,10 @@ def data_main(argv: list[str]) -> int:
     sub.add_parser("list", help="our local datasets and their descriptions")
     args = parser.parse_args(argv)
     if args.cmd == "generate":
-        from .envs.experts import ExpertWeightsNotFoundError
-
+        if args.episodes is not None and args.episodes < 1:
+            parser.error(f"--episodes must be >= 1, got {args.episodes}")
+        if args.noise is not None and not args.noise >= 0:
+            parser.error(f"--noise must be >= 0, got {args.noise}")
         for name in args.names:
             try:
                 dataset_id = generate_dataset(
@@ -224,15 +396,24 @@ def data_main(argv: list[str]) -> int:
                     overwrite=args.overwrite,
                     expert_weights=args.expert_weights,
                 )
-            except ExpertWeightsNotFoundError as err:
-                print(f"hispo-pl data: {err}", file=sys.stderr)
-                return 2
+            except KeyboardInterrupt:
+                raise Interrupted(
+                    f"interrupted while making the {name} dataset: the episodes collected so far "
+                    "are kept; rerun the same command to continue"
+                ) from None
             print(json.dumps(dataset_stats(dataset_id), indent=2))
     else:
         for name in known_dataset_names():
             dataset_id = local_dataset_id(name)
-            if dataset_exists(dataset_id):
+            problem = dataset_problem(dataset_id)
+            if problem is None:
                 print(json.dumps(dataset_stats(dataset_id), indent=2))
+            elif problem != "missing":
+                print(
+                    f"hispo-pl data: {dataset_id} is {problem}; it counts as missing: rebuild "
+                    f"it with\n  hispo-pl data generate {name}",
+                    file=sys.stderr,
+                )
     return 0
 
 
@@ -269,9 +450,15 @@ def load_checkpoint_policy(
     (``as_task`` counts from 1; default the last trained). A missing file, or tasks whose
     observations or actions the module was not built for, stop with a usage error rather
     than a shape error deep in a rollout."""
-    if not Path(ckpt).exists():
+    if not Path(ckpt).is_file():
         parser.error(f"no checkpoint at {ckpt}")
     module = GoalConditionedBC.from_checkpoint_file(ckpt)
+    trained = module.task_index + 1  # tasks whose policy the checkpoint holds
+    if as_task is not None and not 1 <= as_task <= trained:
+        parser.error(
+            f"--as-task {as_task}: {ckpt} holds the policies of tasks 1..{trained} "
+            f"(default: {trained}, the last trained)"
+        )
     for task in tasks:
         for dim in ("obs_dim", "action_dim"):
             built, needed = module.hparams.get(dim), getattr(task.env_family, dim)
@@ -297,8 +484,13 @@ def evaluate_main(argv: list[str]) -> int:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--num_threads", type=int, default=0)
     args = parser.parse_args(argv)
+    if args.episodes < 1:
+        parser.error(f"--episodes must be >= 1, got {args.episodes}")
     set_num_threads(args.num_threads)
-    task = parse_task(args.task)
+    try:
+        task = parse_task(args.task)
+    except UserError as err:
+        parser.error(f"--task: {err}")
     module, as_task = load_checkpoint_policy(parser, args.ckpt, args.as_task, [task])
     evaluator = RolloutEvaluator(task, args.episodes, args.seed)
     result = evaluator.run(module_policy(module, task=as_task), progress=not args.json)
@@ -404,8 +596,27 @@ def _flips(rate: float) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``hispo-pl`` command. A user error (a bad value, spec, file or run directory) prints
+    one paragraph and returns its exit code (2); anything else is a bug and keeps its
+    traceback. After Ctrl-C it says how to resume and returns 130."""
     argv = sys.argv[1:] if argv is None else argv
     _quiet_known_warnings()
+    prog = "hispo-pl" + (f" {argv[0]}" if argv and argv[0] in SUBCOMMANDS else "")
+    try:
+        return _dispatch(argv)
+    except UserError as err:
+        print(f"{prog}: error: {err}", file=sys.stderr)
+        return err.exit_code
+    except KeyboardInterrupt as err:
+        hint = str(err) if isinstance(err, Interrupted) else "interrupted"
+        print(f"\n{prog}: {hint}", file=sys.stderr)
+        return 130
+
+
+SUBCOMMANDS = ("data", "evaluate", "render", "benchmark")
+
+
+def _dispatch(argv: list[str]) -> int:
     if argv and argv[0] == "data":
         return data_main(argv[1:])
     if argv and argv[0] == "evaluate":
@@ -416,7 +627,15 @@ def main(argv: list[str] | None = None) -> int:
         from .benchmark import main as benchmark_main
 
         return benchmark_main(argv[1:])
-    run_lightning_cli(argv)
+    try:
+        run_lightning_cli(argv)
+    except KeyboardInterrupt as err:
+        if isinstance(err, Interrupted):
+            raise
+        raise Interrupted(
+            "interrupted: a single-task fit does not resume; its TensorBoard logs so far are "
+            "kept (streams resume: rerun the same command)"
+        ) from None
     return 0
 
 

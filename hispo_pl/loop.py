@@ -11,6 +11,9 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
+import socket
+import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -21,11 +24,15 @@ import torch
 
 from .data.datamodule import TaskDataModule
 from .data.tasks import Task, parse_task
+from .errors import Interrupted, RunDirError
+from .io import atomic_write_text
 from .metrics import continual_metrics, memory_ratio, module_bytes, results_row_table
 from .modules.hispo import SubspacePolicy
 
 PROGRESS_FILE = "progress.json"
 RESULTS_FILE = "results.json"
+DECISIONS_FILE = "decisions.jsonl"  # written by hispo_pl.callbacks.subspace.log_decisions
+LOCK_FILE = "run.lock"
 
 
 def checkpoint_path(run_dir: Path, task_index: int) -> Path:
@@ -33,12 +40,169 @@ def checkpoint_path(run_dir: Path, task_index: int) -> Path:
     return Path(run_dir) / f"task_{task_index + 1:02d}.ckpt"
 
 
+def task_config_path(run_dir: Path, task_index: int) -> Path:
+    """``task_01.config.yaml``: the configuration task 1 was trained with."""
+    return Path(run_dir) / f"task_{task_index + 1:02d}.config.yaml"
+
+
+def partial_checkpoint_path(run_dir: Path, task_index: int) -> Path:
+    """``task_01.partial.ckpt``: the first task part-way through (see :class:`TaskCheckpoint`)."""
+    return Path(run_dir) / f"task_{task_index + 1:02d}.partial.ckpt"
+
+
+def _sampler_generators(trainer: L.Trainer) -> list[np.random.Generator]:
+    """The numpy generators that draw the training batches: the HER sampler(s) behind the
+    task datamodule's loader (one per task for a replaying sampler)."""
+    loader = trainer.train_dataloader
+    sampler = getattr(getattr(loader, "dataset", None), "sampler", None)
+    samplers = getattr(sampler, "samplers", [sampler])
+    return [s.rng for s in samplers if isinstance(getattr(s, "rng", None), np.random.Generator)]
+
+
+class TaskCheckpoint(L.Callback):
+    """Saves the task in progress every ``every`` steps to ``path`` (atomically), so a run
+    killed inside a long task resumes from there rather than from the task's start.
+
+    With Lightning's own state (weights, optimiser, schedule, loop counters, callbacks) the
+    file holds the random state a resumed task needs to go on exactly as an uninterrupted one:
+    torch's, numpy's and Python's global generators and the batch sampler's generator, all
+    as plain values (``weights_only=True`` loads it).
+    """
+
+    def __init__(self, path: Path, every: int):
+        self.path, self.every = Path(path), every
+        self._trainer: L.Trainer | None = None
+        self._pending: dict | None = None
+
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        self._trainer = trainer
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        step = trainer.global_step
+        if self.every > 0 and step % self.every == 0 and 0 < step < trainer.max_steps:
+            tmp = self.path.with_name(f".{self.path.name}.tmp")
+            trainer.save_checkpoint(tmp)
+            os.replace(tmp, self.path)
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if self._pending is None:
+            return
+        import random
+
+        state, self._pending = self._pending, None
+        torch.set_rng_state(state["torch"])
+        keys = state["numpy"].numpy().astype(np.uint32)
+        np.random.set_state(("MT19937", keys, *state["np_rest"]))
+        random.setstate((state["python"][0], tuple(state["python"][1]), state["python"][2]))
+        generators = _sampler_generators(trainer)
+        if len(generators) != len(state["sampler"]):
+            raise RuntimeError("the resumed task's batch sampler differs from the saved one")
+        for generator, saved in zip(generators, state["sampler"], strict=True):
+            generator.bit_generator.state = saved
+
+    def state_dict(self) -> dict:
+        import random
+
+        kind, keys, pos, has_gauss, cached = np.random.get_state()
+        version, internal, gauss = random.getstate()
+        generators = _sampler_generators(self._trainer) if self._trainer is not None else []
+        return {
+            "torch": torch.get_rng_state(),
+            "numpy": torch.from_numpy(keys.astype(np.int64)),
+            "np_rest": [int(pos), int(has_gauss), float(cached)],
+            "python": [version, list(internal), gauss],
+            "sampler": [g.bit_generator.state for g in generators],
+        }
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        self._pending = state_dict
+
+
 def load_module_state(module: L.LightningModule, path: Path) -> None:
     """Load a task checkpoint into ``module`` in place (structure restored first); plain
     tensors and values only, so ``weights_only=True`` holds."""
-    checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+    from .modules.hbc import read_checkpoint
+
+    checkpoint = read_checkpoint(path)
     module.on_load_checkpoint(checkpoint)
     module.load_state_dict(checkpoint["state_dict"])
+
+
+def fit_interruptibly(trainer: L.Trainer, module: L.LightningModule, datamodule, **kwargs) -> None:
+    """``trainer.fit``, where Ctrl-C raises ``KeyboardInterrupt`` again: Lightning turns it into
+    ``sys.exit(1)`` after its own shutdown and leaves SIGINT ignored."""
+    try:
+        trainer.fit(module, datamodule=datamodule, **kwargs)
+    except SystemExit:
+        if not trainer.interrupted:
+            raise
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        raise KeyboardInterrupt from None
+
+
+def differing_keys(stored: dict, current: dict) -> list[str]:
+    """``key: stored -> current`` for every stored key whose value differs now (or is gone).
+    Keys only ``current`` has are settings a newer hispo-pl added; they do not count, so an
+    upgrade does not lock a run out of its own directory."""
+    missing = object()
+    out = []
+    for key in sorted(stored):
+        a, b = stored.get(key, missing), current.get(key, missing)
+        if a != b:
+            show = lambda v: "(unset)" if v is missing else json.dumps(v)  # noqa: E731
+            out.append(f"{key}: {show(a)} -> {show(b)}")
+    return out
+
+
+class RunDirLock:
+    """An exclusive lock on a run directory for as long as a run uses it (``fcntl.flock`` on
+    ``run.lock``, released by the system even after ``kill -9``). The file names the holder
+    (pid, host, start time, command), so a second run can say who it is waiting for.
+
+    Raises:
+        RunDirError: on enter, when another process holds the lock.
+    """
+
+    def __init__(self, run_dir: Path):
+        self.path = Path(run_dir) / LOCK_FILE
+        self._file = None
+
+    def __enter__(self) -> RunDirLock:
+        try:
+            import fcntl
+        except ImportError:  # not POSIX: no lock
+            return self
+        f = open(self.path, "a+")
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            f.seek(0)
+            holder = f.read().strip() or "another process"
+            f.close()
+            raise RunDirError(
+                f"{self.path.parent} is in use by another run ({holder}); wait for it to end, "
+                "or give this run another directory (e.g. --trainer.logger.init_args.version)"
+            ) from None
+        f.seek(0)
+        f.truncate()
+        f.write(
+            f"pid {os.getpid()} on {socket.gethostname()}, started "
+            f"{time.strftime('%Y-%m-%d %H:%M:%S')}: {' '.join(sys.argv)}\n"
+        )
+        f.flush()
+        self._file = f
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._file is not None:
+            self._file.seek(0)
+            self._file.truncate()
+            self._file.close()  # closing releases the lock
+            self._file = None
+
+
+class MissingCheckpointError(RunDirError, FileNotFoundError):
+    """``progress.json`` lists a finished task whose checkpoint is gone."""
 
 
 class ContinualLoop:
@@ -55,6 +219,14 @@ class ContinualLoop:
         seed: when set, every task ``k`` starts with ``seed_everything(seed + k)``, so a task
             trains the same whether the run went through the earlier tasks or resumed after
             them (a resumed run skips their random draws).
+        fingerprint: every setting that defines the run (flat ``dotted.key: value``), stored
+            in ``progress.json``; a rerun with other values is refused, naming the keys, so
+            tasks trained under different settings never mix. None: not checked.
+        config_text: the run's configuration, kept as ``task_XX.config.yaml`` for each task
+            it trained.
+        checkpoint_every: save the task in progress every this many steps
+            (``task_XX.partial.ckpt``, see :class:`TaskCheckpoint`); a rerun resumes the task
+            from there. 0: only whole tasks are kept.
     """
 
     def __init__(
@@ -67,6 +239,9 @@ class ContinualLoop:
         reference_bytes: int | None = None,
         scratch_success: Sequence[float] | None = None,
         seed: int | None = None,
+        fingerprint: dict | None = None,
+        config_text: str | None = None,
+        checkpoint_every: int = 0,
     ):
         self.stream = [parse_task(t).spec for t in stream]
         self.module = module
@@ -76,57 +251,129 @@ class ContinualLoop:
         self.reference_bytes = reference_bytes
         self.scratch_success = scratch_success
         self.seed = seed
+        self.fingerprint = fingerprint
+        self.config_text = config_text
+        self.checkpoint_every = checkpoint_every
 
     # --- progress on disk -------------------------------------------------------------------
 
     def _load_progress(self) -> dict:
         path = self.run_dir / PROGRESS_FILE
+        fresh = {"stream": self.stream, "rows": [], "wall_time_s": []}
+        if self.fingerprint is not None:
+            fresh["fingerprint"] = self.fingerprint
         if not path.exists():
-            return {"stream": self.stream, "rows": [], "wall_time_s": []}
-        progress = json.loads(path.read_text())
+            return fresh
+        try:
+            progress = json.loads(path.read_text())
+        except ValueError as err:
+            raise RunDirError(
+                f"{path} is not readable JSON ({err}); move the run directory away to start over"
+            ) from None
         if progress["stream"] != self.stream:
-            raise ValueError(
+            raise RunDirError(
                 f"{self.run_dir} holds a run of stream {progress['stream']}, not {self.stream}; "
                 "choose another run directory (e.g. --trainer.logger.init_args.version)"
             )
+        stored = progress.get("fingerprint")
+        differing = differing_keys(stored or {}, self.fingerprint or {})
+        if self.fingerprint is not None and stored is not None and differing:
+            diff = "\n  ".join(differing)
+            raise RunDirError(
+                f"{self.run_dir} holds a run with other settings; resuming would mix tasks "
+                f"trained differently. Differing (stored -> now):\n  {diff}\nRerun with the "
+                "stored settings to resume, or give this run another directory (e.g. "
+                "--trainer.logger.init_args.version)"
+            )
+        if self.fingerprint is not None and stored is None:
+            progress["fingerprint"] = self.fingerprint  # a run from before fingerprints
         return progress
 
     def _save_progress(self, progress: dict) -> None:
-        tmp = self.run_dir / (PROGRESS_FILE + ".tmp")
-        tmp.write_text(json.dumps(progress, indent=1))
-        tmp.replace(self.run_dir / PROGRESS_FILE)
+        atomic_write_text(self.run_dir / PROGRESS_FILE, json.dumps(progress, indent=1))
+
+    def _keep_finished_decisions(self, done: int) -> None:
+        """Drop ``decisions.jsonl`` records of tasks that did not finish (a kill after a task's
+        decisions but before its progress was saved), so a resumed task's records appear
+        once. Records carry the 0-based ``task``."""
+        path = self.run_dir / DECISIONS_FILE
+        if not path.exists():
+            return
+        lines = path.read_text().splitlines(keepends=True)
+        kept = []
+        for line in lines:
+            try:
+                task = json.loads(line).get("task")
+            except ValueError:  # a line cut by a kill
+                continue
+            if isinstance(task, int) and task < done:
+                kept.append(line if line.endswith("\n") else line + "\n")
+        if kept != lines:
+            atomic_write_text(path, "".join(kept))
 
     # --- the loop ---------------------------------------------------------------------------
 
     def run(self) -> dict:
+        """Train the tasks not finished yet, holding the run directory's lock throughout."""
         self.run_dir.mkdir(parents=True, exist_ok=True)
+        with RunDirLock(self.run_dir):
+            return self._run()
+
+    def _run(self) -> dict:
         progress = self._load_progress()
         done = len(progress["rows"])
         if done and not checkpoint_path(self.run_dir, done - 1).exists():
             missing = checkpoint_path(self.run_dir, done - 1).name
-            raise FileNotFoundError(
+            raise MissingCheckpointError(
                 f"{PROGRESS_FILE} lists {done} finished tasks but {missing} is missing"
             )
+        self._keep_finished_decisions(done)
+        self._save_progress(progress)  # the fingerprint, before anything trains
         if done:
             load_module_state(self.module, checkpoint_path(self.run_dir, done - 1))
             print(f"[hispo-pl] resuming {self.run_dir}: tasks 1..{done} already trained")
         for k in range(done, len(self.stream)):
-            start = time.perf_counter()
-            if self.seed is not None:
-                workers = os.environ.get("PL_SEED_WORKERS") == "1"  # as the CLI seeded
-                L.seed_everything(self.seed + k, workers=workers, verbose=False)
-            self.module.task_index = k
-            self.module.log_prefix = f"task_{k + 1:02d}/"
-            trainer = self.make_trainer(k)
-            trainer.fit(self.module, datamodule=self.make_datamodule(self.stream[k]))
-            row = self._row_from(trainer, k)
-            trainer.save_checkpoint(checkpoint_path(self.run_dir, k))
-            progress["rows"].append(row)
-            progress["wall_time_s"].append(time.perf_counter() - start)
-            self._save_progress(progress)
+            try:
+                self._train_task(k, progress)
+            except KeyboardInterrupt:
+                kept = f"tasks 1..{k} are finished and kept" if k else "no task had finished"
+                partial = partial_checkpoint_path(self.run_dir, k)
+                if self.checkpoint_every > 0 and partial.exists():
+                    kept += f", task {k + 1} is saved part-way ({partial.name})"
+                raise Interrupted(
+                    f"interrupted during task {k + 1} of {len(self.stream)}; {kept} in "
+                    f"{self.run_dir}. Rerun the same command to resume."
+                ) from None
         results = self._results(progress)
-        (self.run_dir / RESULTS_FILE).write_text(json.dumps(results, indent=1))
+        atomic_write_text(self.run_dir / RESULTS_FILE, json.dumps(results, indent=1))
         return results
+
+    def _train_task(self, k: int, progress: dict) -> None:
+        """Train task ``k`` and record its checkpoint, configuration and row of R."""
+        start = time.perf_counter()
+        if self.seed is not None:
+            workers = os.environ.get("PL_SEED_WORKERS") == "1"  # as the CLI seeded
+            L.seed_everything(self.seed + k, workers=workers, verbose=False)
+        self.module.task_index = k
+        self.module.log_prefix = f"task_{k + 1:02d}/"
+        trainer = self.make_trainer(k)
+        partial = partial_checkpoint_path(self.run_dir, k)
+        if self.checkpoint_every > 0:
+            trainer.callbacks.append(TaskCheckpoint(partial, self.checkpoint_every))
+        resume = partial if partial.exists() and self.checkpoint_every > 0 else None
+        if resume is not None:
+            print(f"[hispo-pl] resuming task {k + 1} from {partial.name}")
+        datamodule = self.make_datamodule(self.stream[k])
+        fit_interruptibly(trainer, self.module, datamodule, ckpt_path=resume, weights_only=True)
+        row = self._row_from(trainer, k)
+        trainer.save_checkpoint(checkpoint_path(self.run_dir, k))
+        if self.config_text is not None:
+            atomic_write_text(task_config_path(self.run_dir, k), self.config_text)
+        progress["rows"].append(row)
+        elapsed = time.perf_counter() - start
+        progress["wall_time_s"].append(elapsed)
+        self._save_progress(progress)
+        partial.unlink(missing_ok=True)
 
     def _row_from(self, trainer: L.Trainer, k: int) -> list[float]:
         from .callbacks import RolloutEvaluation

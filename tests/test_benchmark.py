@@ -369,11 +369,15 @@ def test_dry_run_prints_commands_and_writes_nothing(tmp_path, capsys):
     configs = _config_dir(tmp_path, ["hispo", "scn"])
     out = tmp_path / "out"
     args = ["benchmark", "--stream", "pointmaze-1", "--seeds", "0,4", "--out", str(out)]
-    assert cli_main([*args, "--config-dir", str(configs), "--dry-run", "--", "--x", "1"]) == 0
+    extra = ["--", "--trainer.max_steps", "7"]
+    assert cli_main([*args, "--config-dir", str(configs), "--dry-run", *extra]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 4 and lines[0].startswith("[benchmark] hispo/seed0 (to run): ")
-    assert "--seed_everything 4" in lines[3] and lines[3].endswith("--x 1")
+    assert "--seed_everything 4" in lines[3] and lines[3].endswith("--trainer.max_steps 7")
     assert not out.exists()
+    # the overrides are checked as fit would parse them
+    assert cli_main([*args, "--config-dir", str(configs), "--dry-run", "--", "--x", "1"]) == 2
+    assert "--x" in capsys.readouterr().err
 
 
 # --- launchers on fake commands ---------------------------------------------------------------

@@ -6,7 +6,9 @@ arrays at load time by the same pure transforms the env wrapper uses.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -14,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
+from ..errors import UserError
 from .tasks import (
     FAMILIES,
     GAME_FAMILIES,
@@ -34,7 +37,7 @@ def default_episodes(name: str | Task) -> int:
     return parse_task(name).env_family.default_episodes
 
 
-class DatasetNotFoundError(FileNotFoundError):
+class DatasetNotFoundError(UserError, FileNotFoundError):
     """A dataset that is neither stored locally nor downloadable; says how to make one."""
 
 
@@ -49,8 +52,53 @@ def dataset_path(dataset_id: str) -> Path:
     return Path(get_dataset_path(dataset_id))
 
 
+def dataset_problem(dataset_id: str) -> str | None:
+    """Why a stored dataset cannot be used (``"missing"``, or what is incomplete about it),
+    or None when it is complete: its metadata reads and its HDF5 file opens with as many
+    episodes as the metadata says. A dataset cut short by a kill while Minari wrote it thus
+    counts as missing rather than as a smaller one."""
+    data = dataset_path(dataset_id) / "data"
+    if not data.exists():
+        return "missing"
+    try:
+        metadata = json.loads((data / "metadata.json").read_text())
+        episodes = int(metadata["total_episodes"])
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        return f"incomplete: no readable metadata.json ({type(err).__name__})"
+    hdf5 = data / "main_data.hdf5"
+    if not hdf5.exists():
+        if any(data.glob("*.hdf5")) or not any(p.name != "metadata.json" for p in data.iterdir()):
+            return "incomplete: no episode data"
+        return None  # another Minari storage backend: trust its metadata
+    try:
+        import h5py
+
+        with h5py.File(hdf5, "r") as f:
+            stored = sum(1 for key in f if key.startswith("episode_"))
+    except (OSError, ValueError) as err:
+        return f"incomplete: {hdf5.name} does not open ({type(err).__name__})"
+    if stored != episodes:
+        return f"incomplete: {stored} of {episodes} episodes stored"
+    return None
+
+
 def dataset_exists(dataset_id: str) -> bool:
-    return (dataset_path(dataset_id) / "data").exists()
+    """Whether the dataset is stored and complete (:func:`dataset_problem`)."""
+    return dataset_problem(dataset_id) is None
+
+
+@contextlib.contextmanager
+def _minari_root(path: Path):
+    """Minari's datasets root (``MINARI_DATASETS_PATH``, read on every call) set to ``path``."""
+    before = os.environ.get("MINARI_DATASETS_PATH")
+    os.environ["MINARI_DATASETS_PATH"] = str(path)
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop("MINARI_DATASETS_PATH", None)
+        else:
+            os.environ["MINARI_DATASETS_PATH"] = before
 
 
 @dataclass(frozen=True)
@@ -174,6 +222,13 @@ def load_episodes(source: str | Task, *, generate_if_missing: bool = True) -> Ep
     if not dataset_exists(dataset_id):
         try:
             ds = minari.load_dataset(dataset_id, download=True)
+        except ImportError as err:  # minari's remote support is an optional extra
+            raise DatasetNotFoundError(
+                f"Minari dataset {dataset_id} is not stored under {dataset_path('')}, and "
+                f"downloading it needs the optional package {err.name or err} (pip install "
+                f"'minari[hf]' or {err.name}).\nOr generate local expert data instead, e.g.\n"
+                "  hispo-pl data generate pointmaze-umaze"
+            ) from err
         except Exception as err:  # no network, unknown id, remote down
             raise DatasetNotFoundError(
                 f"Minari dataset {dataset_id} is not stored under {dataset_path('')} and could not "
@@ -305,7 +360,9 @@ def generate_dataset(
     ``noise``: std of the Gaussian action noise in env units (default: the expert's, 0.2 for
     the ball, 0.04 = D4RL's 0.2 before the ant's action scaling). Collection is resumable: each
     episode is seeded by (seed, index) and staged to disk as soon as it is done, so an
-    interrupted run continues where it stopped with identical data.
+    interrupted run continues where it stopped with identical data. The dataset is written
+    into a build directory beside the staged episodes and moved into place only once
+    complete; an incomplete one found in place (:func:`dataset_problem`) is rebuilt.
     """
     import minari
     from minari.data_collector import EpisodeBuffer
@@ -315,10 +372,14 @@ def generate_dataset(
     task = parse_task(name)
     name = task.dataset_name
     dataset_id = local_dataset_id(name)
-    if dataset_exists(dataset_id):
-        if not overwrite:
-            return dataset_id
+    final = dataset_path(dataset_id)
+    problem = dataset_problem(dataset_id)
+    if problem is None and not overwrite:
+        return dataset_id
+    if problem is None:
         minari.delete_dataset(dataset_id)
+    elif problem != "missing":  # cut short by a kill while it was written: rebuild it
+        shutil.rmtree(final)
     steps = task.defaults.max_episode_steps
     episodes = episodes or default_episodes(task)
     game = task.family in GAME_FAMILIES
@@ -393,17 +454,28 @@ def generate_dataset(
             f"Expert goal success: {ok}/{ok + failed} = {success:.4f} (a goal fails if not "
             f"reached within {steps} steps).{cut} Stats: {json.dumps(stats)}"
         )
-    minari.create_dataset_from_buffers(
-        dataset_id=dataset_id,
-        buffer=buffers,
-        env=env.spec,
-        eval_env=make_env(name).spec,
-        author_email="hispo-pl@users.noreply.github.com",
-        algorithm_name=expert.name,
-        author="hispo-pl",
-        code_permalink="https://github.com/hispo-pl/hispo-pl",
-        description=description,
-    )
+    build = dataset_path("") / ".staging" / f"build-{name}"  # a killed build is redone
+    shutil.rmtree(build, ignore_errors=True)
+    with _minari_root(build):  # the dataset is written here, then moved into place whole
+        minari.create_dataset_from_buffers(
+            dataset_id=dataset_id,
+            buffer=buffers,
+            env=env.spec,
+            eval_env=make_env(name).spec,
+            author_email="hispo-pl@users.noreply.github.com",
+            algorithm_name=expert.name,
+            author="hispo-pl",
+            code_permalink="https://github.com/hispo-pl/hispo-pl",
+            description=description,
+        )
+    final.parent.mkdir(parents=True, exist_ok=True)
+    namespace_meta = build / NAMESPACE / "namespace_metadata.json"
+    if namespace_meta.exists() and not (final.parent / namespace_meta.name).exists():
+        shutil.copy(namespace_meta, final.parent / namespace_meta.name)
+    if final.exists():  # an incomplete copy left by an older version
+        shutil.rmtree(final)
+    os.replace(build / dataset_id, final)
+    shutil.rmtree(build, ignore_errors=True)
     shutil.rmtree(staging, ignore_errors=True)
     return dataset_id
 

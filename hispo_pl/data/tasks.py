@@ -12,6 +12,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..errors import UserError
+
 VARIANTS: dict[str, str] = {
     "N": "normal: no change",
     "IA": "inverted actions: every action entry negated",
@@ -137,7 +139,7 @@ GRAMMAR = (
 )
 
 
-class TaskSpecError(ValueError):
+class TaskSpecError(UserError, ValueError):
     """A task spec or stream name that does not parse; the message shows the grammar."""
 
 

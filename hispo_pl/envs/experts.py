@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import UserError
 from .mazes import bfs_next_cell, cell_to_xy, maze_array, xy_to_cell
 
 
@@ -104,7 +105,7 @@ ANT_WEIGHT_KEYS = (
 )
 
 
-class ExpertWeightsNotFoundError(FileNotFoundError):
+class ExpertWeightsNotFoundError(UserError, FileNotFoundError):
     """The ant expert's weights file is missing; the message says where to get it."""
 
 

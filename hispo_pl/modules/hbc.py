@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Literal
 
 import lightning as L
 import torch
 from torch import Tensor, nn
 
+from ..errors import CheckpointError, TrainingDivergedError
 from ..nn import fast
 from ..nn.mlp import GaussianPolicy, feature_dim, goal_features
 
@@ -50,6 +52,7 @@ class GoalConditionedBC(L.LightningModule):
         )
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
+        check_finite_state(checkpoint["state_dict"], self.task_index)
         # enough to rebuild the module from the file alone (``hispo-pl evaluate``)
         checkpoint["hispo_pl_class"] = f"{type(self).__module__}.{type(self).__qualname__}"
         checkpoint["hispo_pl_task_index"] = self.task_index
@@ -69,26 +72,47 @@ class GoalConditionedBC(L.LightningModule):
 
     @classmethod
     def from_checkpoint_file(cls, path: str) -> GoalConditionedBC:
-        """Rebuild whichever method wrote ``path`` (its class is stored in the file), on CPU;
-        the file holds plain tensors and values only (``weights_only=True``)."""
-        import importlib
+        """Rebuild whichever method wrote ``path`` (its class is stored in the file), on CPU.
 
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
-        if "hispo_pl_class" not in checkpoint:
-            raise ValueError(f"{path} was not written by a hispo-pl module (no hispo_pl_class)")
-        module_name, _, name = checkpoint["hispo_pl_class"].rpartition(".")
-        method = getattr(importlib.import_module(module_name), name)
+        The file holds plain tensors and values only (``weights_only=True``), and its class
+        name is looked up among hispo-pl's own methods (:func:`method_registry`): nothing the
+        file names is imported.
+
+        Raises:
+            CheckpointError: the file is corrupt, truncated, unsafe, or not hispo-pl's.
+        """
+        checkpoint = read_checkpoint(path)
+        name = checkpoint.get("hispo_pl_class")
+        if not isinstance(name, str):
+            raise CheckpointError(
+                f"not a readable hispo-pl checkpoint: {path} (no hispo_pl_class entry: it was "
+                "not written by a hispo-pl module)"
+            )
+        method = method_registry().get(name)
+        if method is None:
+            raise CheckpointError(
+                f"not a readable hispo-pl checkpoint: {path} names the class {name!r}, which is "
+                "not one of hispo-pl's methods"
+            )
         if not issubclass(method, cls):
-            raise TypeError(f"{path} holds a {name}, not a {cls.__name__}")
-        # LightningCLI adds private entries such as ``_class_path`` to the hyperparameters
-        hparams = {k: v for k, v in checkpoint["hyper_parameters"].items() if not k.startswith("_")}
-        module = method(**hparams)
-        module.on_load_checkpoint(checkpoint)
-        module.load_state_dict(checkpoint["state_dict"])
+            raise CheckpointError(f"{path} holds a {method.__name__}, not a {cls.__name__}")
+        try:
+            # LightningCLI adds private entries such as ``_class_path`` to the hyperparameters
+            hparams = {k: v for k, v in checkpoint["hyper_parameters"].items() if k[:1] != "_"}
+            module = method(**hparams)
+            module.on_load_checkpoint(checkpoint)
+            module.load_state_dict(checkpoint["state_dict"])
+        except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as err:
+            raise CheckpointError(
+                f"not a readable hispo-pl checkpoint: {path} ({type(err).__name__}: "
+                f"{_first_line(err)})"
+            ) from None
         return module.eval()
 
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
         losses = self.losses(batch)
+        if not torch.isfinite(losses["loss"]):
+            raise TrainingDivergedError(self._divergence_message(losses["loss"]))
         if self._step_reaches_logger():
             self.log_dict(
                 {f"{self.log_prefix}train/{k}": v.detach() for k, v in losses.items()},
@@ -107,6 +131,19 @@ class GoalConditionedBC(L.LightningModule):
             return True
         every = trainer.log_every_n_steps
         return every > 0 and ((self.global_step + 1) % every == 0 or trainer.should_stop)
+
+    def _divergence_message(self, loss: Tensor) -> str:
+        trainer = self._trainer
+        step = trainer.global_step + 1 if trainer is not None else "?"
+        lr = self.lr
+        if trainer is not None and trainer.optimizers:
+            lr = trainer.optimizers[0].param_groups[0]["lr"]
+        return (
+            f"training diverged: the loss is {float(loss)} at step {step} of task "
+            f"{self.task_index + 1} (learning rate {lr:g}); training stopped and nothing of "
+            "this task was saved. Lower the learning rate (--model.init_args.lr, now "
+            f"{self.lr:g}), or check the data and the other hyperparameters."
+        )
 
     def configure_optimizers(self):
         params = [p for p in self.parameters() if p.requires_grad]
@@ -411,3 +448,72 @@ class BC(GoalConditionedBC):
         velocity: Tensor | None = None,
     ) -> Tensor:
         return self.net.act(observation, position, goal, velocity)
+
+
+def check_finite_state(state_dict: dict[str, Tensor], task_index: int = 0) -> None:
+    """Refuse to save weights that are NaN or infinite (a diverged step after the last finite
+    loss): a checkpoint must never hold a policy that only looks trained.
+
+    Raises:
+        TrainingDivergedError: names the first non-finite tensor.
+    """
+    for name, tensor in state_dict.items():
+        if torch.is_tensor(tensor) and tensor.is_floating_point() and not tensor.isfinite().all():
+            raise TrainingDivergedError(
+                f"training diverged: {name} holds NaN or infinite values at the end of task "
+                f"{task_index + 1}; nothing was saved. Lower the learning rate "
+                "(--model.init_args.lr)."
+            )
+
+
+def _first_line(err: BaseException) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__
+
+
+def read_checkpoint(path: str | Path) -> dict:
+    """A checkpoint file's contents, loaded with ``weights_only=True`` on CPU.
+
+    Raises:
+        CheckpointError: the file cannot be read as a checkpoint of plain tensors and values
+            (corrupt, truncated, not a checkpoint, or holding objects that would run code);
+            the message never suggests ``weights_only=False``.
+    """
+    import pickle
+    import re
+
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as err:
+        found = re.search(r"Unsupported global: GLOBAL ([\w.]+)", str(err))
+        what = f" ({found.group(1)})" if found else ""
+        raise CheckpointError(
+            f"not a readable hispo-pl checkpoint: {path} holds Python objects other than "
+            f"tensors and plain values{what}, which hispo-pl never writes and will not load"
+        ) from None
+    except (OSError, RuntimeError, EOFError, ValueError, KeyError, AttributeError) as err:
+        raise CheckpointError(
+            f"not a readable hispo-pl checkpoint: {path} (corrupt or truncated: {_first_line(err)})"
+        ) from None
+    if not isinstance(checkpoint, dict) or not isinstance(checkpoint.get("state_dict"), dict):
+        raise CheckpointError(
+            f"not a readable hispo-pl checkpoint: {path} (no state_dict: not a Lightning "
+            "checkpoint)"
+        )
+    return checkpoint
+
+
+def method_registry() -> dict[str, type[GoalConditionedBC]]:
+    """hispo-pl's own methods by the name a checkpoint stores (``module.QualName``): every
+    subclass of :class:`GoalConditionedBC` defined in the ``hispo_pl`` package. Only already
+    imported code is searched; a checkpoint can never make hispo-pl import a module."""
+    from .. import modules  # noqa: F401  (defines every shipped method)
+
+    found: dict[str, type[GoalConditionedBC]] = {}
+    todo = [GoalConditionedBC]
+    while todo:
+        klass = todo.pop()
+        if klass.__module__.split(".")[0] == "hispo_pl":
+            found[f"{klass.__module__}.{klass.__qualname__}"] = klass
+        todo.extend(klass.__subclasses__())
+    return found
