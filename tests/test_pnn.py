@@ -306,9 +306,10 @@ def test_stream_end_to_end(tiny_umaze, tmp_path):
     # MEM: two columns and one lateral set per policy, in units of one HBC
     hp = second.hparams
     assert hp.high_log_std == 0.0  # the method config fixes it: high head = goal_dim outputs
+    assert hp.low_log_std == 0.0 and not hp.low_obs and hp.low_velocity  # goal-space low
     f = feature_dim(hp.goal_dim)
     high = (f + hp.obs_dim + 2 * hp.goal_dim, hp.high_hidden, hp.goal_dim)
-    low = (f + hp.obs_dim, hp.low_hidden, 2 * hp.action_dim)
+    low = (f + hp.goal_dim, hp.low_hidden, hp.action_dim)
     unit = column_parameter_count(*high) + column_parameter_count(*low)
     pair = progressive_parameter_count(2, *high) + progressive_parameter_count(2, *low)
     assert results["MEM"] > 2

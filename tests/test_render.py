@@ -167,7 +167,7 @@ def test_failed_episodes_are_red_and_dashed():
 def test_game_rollouts_are_drawn_in_world_coordinates():
     import torch
 
-    def forward(observation, position, goal):  # press "forward": walk up the map
+    def forward(observation, position, goal, velocity=None):  # press "forward": walk up the map
         action = torch.zeros(len(observation), 8)
         action[:, 2] = 1.0
         return action
