@@ -16,7 +16,7 @@ from ..decisions import critic_extends, extended_subspace_candidates, previous_s
 from ..modules.csp import CriticScoredSubspace
 from ..nn import eval_mode
 from ..search import RaceOutcome, race_candidates, race_subspace
-from .subspace import log_decisions
+from .subspace import check_task_end_order, log_decisions
 
 
 def _require_critic(pl_module: L.LightningModule, who: str) -> CriticScoredSubspace:
@@ -156,23 +156,6 @@ class CriticEvaluation(L.Callback):
         return {k: sum(d[k] for d in per_batch) / len(per_batch) for k in per_batch[0]}
 
 
-def _check_critic_order(callbacks: list[L.Callback], pruning: CriticPruning) -> CriticEvaluation:
-    """Task-end hooks run in list order: search, then prune, then evaluate the result."""
-    from .rollout import RolloutEvaluation
-
-    pos = {id(cb): i for i, cb in enumerate(callbacks)}
-    search = [cb for cb in callbacks if isinstance(cb, CriticEvaluation)]
-    if not search or pos[id(search[0])] > pos[id(pruning)]:
-        raise ValueError("CriticPruning needs a CriticEvaluation callback listed before it")
-    if any(
-        isinstance(cb, RolloutEvaluation) and pos[id(cb)] < pos[id(pruning)] for cb in callbacks
-    ):
-        raise ValueError(
-            "list RolloutEvaluation after CriticPruning: it must see the pruned policy"
-        )
-    return search[0]
-
-
 class CriticPruning(L.Callback):
     """At the end of a task, per subspace, CSP's rule: keep the new anchor iff
     ``W(α_new) > (1 + eps) · W(α_old)`` (:func:`hispo_pl.decisions.critic_extends`, which
@@ -197,7 +180,7 @@ class CriticPruning(L.Callback):
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         _require_critic(pl_module, type(self).__name__)
-        self._search = _check_critic_order(trainer.callbacks, self)
+        self._search = check_task_end_order(trainer.callbacks, self, CriticEvaluation)
 
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:

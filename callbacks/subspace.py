@@ -288,20 +288,21 @@ class DirichletEvaluation(L.Callback):
         )
 
 
-def _check_order(callbacks: list[L.Callback], pruning: SubspacePruning) -> DirichletEvaluation:
-    """Task-end hooks run in list order: search, then prune, then evaluate the result."""
+def check_task_end_order(callbacks: list[L.Callback], pruning: L.Callback, search_type: type):
+    """Task-end hooks run in list order: the search (an instance of ``search_type``), then
+    ``pruning``, then the rollout evaluation that must see the pruned policy. Returns the
+    search callback."""
     from .rollout import RolloutEvaluation
 
     pos = {id(cb): i for i, cb in enumerate(callbacks)}
-    search = [cb for cb in callbacks if isinstance(cb, DirichletEvaluation)]
+    search = [cb for cb in callbacks if isinstance(cb, search_type)]
+    prune, find = type(pruning).__name__, search_type.__name__
     if not search or pos[id(search[0])] > pos[id(pruning)]:
-        raise ValueError("SubspacePruning needs a DirichletEvaluation callback listed before it")
+        raise ValueError(f"{prune} needs a {find} callback listed before it")
     if any(
         isinstance(cb, RolloutEvaluation) and pos[id(cb)] < pos[id(pruning)] for cb in callbacks
     ):
-        raise ValueError(
-            "list RolloutEvaluation after SubspacePruning: it must see the pruned policy"
-        )
+        raise ValueError(f"list RolloutEvaluation after {prune}: it must see the pruned policy")
     return search[0]
 
 
@@ -334,7 +335,7 @@ class SubspacePruning(L.Callback):
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         _require_subspace_policy(pl_module, type(self).__name__)
-        self._search = _check_order(trainer.callbacks, self)
+        self._search = check_task_end_order(trainer.callbacks, self, DirichletEvaluation)
 
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:

@@ -11,7 +11,8 @@ import torch
 from helpers import fit_tiny_stream
 
 from hispo_pl.callbacks import CriticEvaluation, CriticPruning
-from hispo_pl.callbacks.critic import CriticSearchResult, _check_critic_order
+from hispo_pl.callbacks.critic import CriticSearchResult
+from hispo_pl.callbacks.subspace import check_task_end_order
 from hispo_pl.decisions import critic_extends
 from hispo_pl.iql import expectile_loss, goal_reward, polyak_update, td_loss, td_target
 from hispo_pl.metrics import module_bytes
@@ -246,7 +247,7 @@ def test_critic_callbacks_check_the_module_and_their_order():
         CriticEvaluation().setup(None, CSPO(**SIZES), "fit")
     pruning = CriticPruning()
     with pytest.raises(ValueError, match="CriticEvaluation callback listed before"):
-        _check_critic_order([pruning, CriticEvaluation()], pruning)
+        check_task_end_order([pruning, CriticEvaluation()], pruning, CriticEvaluation)
 
 
 # --- a tiny stream end to end ---------------------------------------------------------------------
@@ -276,7 +277,7 @@ def test_csp_end_to_end_through_the_cli(tiny_umaze, tmp_path):
     b = _batch(5)
     obs = torch.randn(5, tiny_umaze.observations.shape[1])
     for task in (0, 1):
-        action = module.act(obs, b["position"], b["goal"], task=task)
+        action = module.act(obs, b["position"], b["goal"], task=task, velocity=b["velocity"])
         assert action.shape == (5, 2) and torch.isfinite(action).all()
     tags = set()
     for event in run_dir.glob("events.out.tfevents.*"):
