@@ -133,7 +133,7 @@ def _module(seed: int = 0, **kw) -> CSP:
 
 def _batch(n: int = 12, seed: int = 0) -> dict[str, torch.Tensor]:
     g = torch.Generator().manual_seed(seed)
-    dims = {"observation": 4, "position": 2, "goal": 2, "subgoal": 2, "action": 2}
+    dims = {"observation": 4, "position": 2, "velocity": 2, "goal": 2, "subgoal": 2, "action": 2}
     dims |= {"next_observation": 4, "next_position": 2}
     return {k: torch.randn(n, d, generator=g) for k, d in dims.items()}
 
