@@ -44,7 +44,7 @@ class HispoCLI(LightningCLI):
             "--num_threads",
             type=int,
             default=0,
-            help="torch.set_num_threads (0: torch default). Try 1 on a busy 2-core machine.",
+            help="torch.set_num_threads (0: torch default); see docs/performance.md.",
         )
         parser.add_argument(
             "--scratch_results",
