@@ -28,19 +28,15 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _low(obs: bool, velocity: bool, log_std: str) -> list[str]:
-    return [
-        *("--model.init_args.low_obs", str(obs).lower()),
-        *("--model.init_args.low_velocity", str(velocity).lower()),
-        *("--model.init_args.low_log_std", log_std),
-    ]
+def _low(inputs: str, log_std: str) -> list[str]:
+    return ["--data.low_inputs", inputs, "--model.init_args.low_log_std", log_std]
 
 
 SETTINGS: dict[str, list[str]] = {  # what the low policy sees, and its log-std
-    "obs-nll": _low(True, False, "null"),  # the observation (PointMaze: x, y, vx, vy), NLL
-    "obs-fixed": _low(True, False, "0.0"),  # the same, squared error
-    "subgoal-fixed": _low(False, False, "0.0"),  # the subgoal's features only
-    "goal-fixed": _low(False, True, "0.0"),  # + the goal-space velocity (no observation)
+    "obs-nll": _low("observation", "null"),  # the observation (PointMaze: x, y, vx, vy), NLL
+    "obs-fixed": _low("observation", "0.0"),  # the same, squared error
+    "subgoal-fixed": _low("subgoal", "0.0"),  # the subgoal's features only
+    "goal-fixed": _low("goal", "0.0"),  # + the goal-space velocity (no observation)
 }
 MAZES = {"U": "umaze", "M": "medium", "L": "large"}
 

@@ -60,7 +60,8 @@ class HispoCLI(LightningCLI):
             help="streams: save the task in progress every N steps (task_XX.partial.ckpt); a "
             "rerun resumes it from there (0: only finished tasks are kept)",
         )
-        for dim in ("obs_dim", "action_dim", "goal_dim", "binary_actions"):
+        linked = ("obs_dim", "action_dim", "goal_dim", "binary_actions", "low_obs", "low_velocity")
+        for dim in linked:
             parser.link_arguments(f"data.{dim}", f"model.init_args.{dim}", apply_on="instantiate")
 
     def _parse_ckpt_path(self) -> None:

@@ -58,10 +58,8 @@ def test_hispo_stream_without_observation_in_the_low_policy(tiny_umaze, tmp_path
         "hispo",
         tmp_path,
         ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"],
-        "--model.init_args.low_obs",
-        "false",
-        "--model.init_args.low_velocity",
-        "false",
+        "--data.low_inputs",
+        "subgoal",
     )
     assert results["BWT"] == 0.0
     module = GoalConditionedBC.from_checkpoint_file(str(run_dir / "task_02.ckpt"))
@@ -120,10 +118,8 @@ def test_hispo_stream_with_a_goal_space_low_policy(tiny_umaze, tmp_path):
         "hispo",
         tmp_path,
         ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"],
-        "--model.init_args.low_obs",
-        "false",
-        "--model.init_args.low_velocity",
-        "true",
+        "--data.low_inputs",
+        "goal",
     )
     assert results["BWT"] == 0.0 and len(results["R"]) == 2
     module = GoalConditionedBC.from_checkpoint_file(str(run_dir / "task_02.ckpt"))

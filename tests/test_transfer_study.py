@@ -58,3 +58,10 @@ def test_study_decisions_equal_the_products_own_run(tiny_umaze, tmp_path):
             assert got[name][key] == direct[name][key], (name, key)
     text = study.table(tmp_path / "study", [setting], [pair], [0])
     assert text.count("| subgoal-fixed | U-N:U-N | 0 |") == 2
+
+
+def test_the_committed_table_rebuilds_from_the_committed_run_files():
+    out = ROOT / "docs" / "results" / "transfer"
+    text = study.table(out, ["obs-fixed", "goal-fixed"], ["U-N:U-N"], [0])
+    assert text == (out / "table.md").read_text()
+    assert text in (ROOT / "docs" / "studies" / "transfer.md").read_text()

@@ -11,7 +11,7 @@ from torch.utils.data import DataLoader, IterableDataset
 
 from .datasets import EpisodeArrays, load_episodes
 from .sampler import HERConfig, HERSampler, Horizon, MixedSampler, Strategy
-from .tasks import Task, parse_stream, parse_task
+from .tasks import LOW_INPUTS, Task, parse_stream, parse_task
 
 
 class _Batches(IterableDataset):
@@ -56,6 +56,12 @@ class TaskDataModule(L.LightningDataModule):
             shares over the tasks seen so far (the RPL baseline: an upper bound that keeps old
             data, which the continual setting forbids). Task-end callbacks still draw their
             batches from the current task only.
+        low_inputs: what the low policy of the model sees (linked to its ``low_obs`` and
+            ``low_velocity``): ``observation`` (the subgoal's features and the observation),
+            ``goal`` (the subgoal's features and the goal-space velocity: no observation, so no
+            observation variant reaches it), ``subgoal`` (the subgoal's features only), or
+            ``family``: the family's own choice (PointMaze ``goal``; AntMaze and the game
+            mazes ``observation``, whose agents need their body state or depth image).
         holdout: share of each task's episodes never trained on (chosen by episode, with a
             fixed seed): the subspace search, ``L_curr`` and the zero-shot test score on them,
             so that a decision measures how a policy generalises, not how well it memorised.
@@ -80,6 +86,7 @@ class TaskDataModule(L.LightningDataModule):
         replay: bool = False,
         holdout: float = 0.1,
         transitions: bool = False,
+        low_inputs: Literal["family", "observation", "goal", "subgoal"] = "family",
     ):
         super().__init__()
         if not 0.0 <= holdout < 1.0:
@@ -106,6 +113,12 @@ class TaskDataModule(L.LightningDataModule):
         self.seed = seed
         self.replay = replay
         self.holdout = holdout
+        if low_inputs != "family" and low_inputs not in LOW_INPUTS:
+            raise ValueError(
+                f"--data.low_inputs must be family or one of {', '.join(LOW_INPUTS)}, "
+                f"got {low_inputs!r}"
+            )
+        self.low_inputs = low_inputs
         self.transitions = transitions
         self.data: EpisodeArrays | None = None  # every episode of the task
         self.splits: dict[Split, EpisodeArrays] = {}  # "train" and "heldout" parts of data
@@ -141,6 +154,20 @@ class TaskDataModule(L.LightningDataModule):
     @property
     def goal_dim(self) -> int:
         return self.task.env_family.goal_dim
+
+    @property
+    def low_obs(self) -> bool:
+        """Whether the low policy sees the observation (see ``low_inputs``)."""
+        return self._low_inputs()[0]
+
+    @property
+    def low_velocity(self) -> bool:
+        """Whether the low policy sees the goal-space velocity (see ``low_inputs``)."""
+        return self._low_inputs()[1]
+
+    def _low_inputs(self) -> tuple[bool, bool]:
+        name = self.task.env_family.low_inputs if self.low_inputs == "family" else self.low_inputs
+        return LOW_INPUTS[name]
 
     @property
     def binary_actions(self) -> int:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field, replace
+from typing import Literal
 
 import numpy as np
 
@@ -33,6 +34,14 @@ class MazeDefaults:
     her_temperature: float
 
 
+LowInputs = Literal["observation", "goal", "subgoal"]
+LOW_INPUTS: dict[str, tuple[bool, bool]] = {  # name -> (low_obs, low_velocity) of the backbone
+    "observation": (True, False),  # features(subgoal − pos) + the observation (variant applied)
+    "goal": (False, True),  # features(subgoal − pos) + goal-space velocity: goal space only
+    "subgoal": (False, False),  # features(subgoal − pos) only (the authors' low policy)
+}
+
+
 @dataclass(frozen=True)
 class Family:
     """An environment family (PointMaze, AntMaze) and everything that differs between them."""
@@ -49,6 +58,7 @@ class Family:
     default_episodes: int = 500  # dataset episodes per maze when a spec names none
     binary_actions: int = 0  # leading action entries that are buttons (Bernoulli in the policy)
     step_seconds: float = 0.01  # time between two observations: turns position steps into velocity
+    low_inputs: LowInputs = "observation"  # what the low policy sees by default (LOW_INPUTS)
 
 
 def _game_family(
@@ -76,6 +86,7 @@ def _game_family(
 FAMILIES: dict[str, Family] = {
     "pointmaze": Family(
         name="pointmaze",
+        low_inputs="goal",  # a point mass needs no proprioception: its low policy sees goal space
         env_id="PointMaze_{}-v3",
         obs_dim=4,
         action_dim=2,
