@@ -1,5 +1,6 @@
 # Two commands on a fresh machine (Python >= 3.10):
-#   make demo   - create .venv if missing, generate PointMaze U-maze expert data, train HBC, print success
+#   make demo   - create .venv if missing, generate PointMaze U-maze expert data, run a two-task HiSPO
+#                 stream that grows one subspace and prunes the other, print R, PER, MEM, decisions
 #   make test   - create .venv if missing, run the test suite
 # On a CPU-only machine torch is pinned to the local CPU build (a looser pin pulls CUDA wheels);
 # pyproject keeps the range open for users. Override with `make TORCH_PIN=torch==X.Y.Z`.
@@ -18,7 +19,7 @@ $(BIN)/hispo-pl: pyproject.toml
 	touch $(BIN)/hispo-pl
 
 demo: $(BIN)/hispo-pl
-	$(BIN)/hispo-pl fit --config configs/quickstart.yaml
+	$(BIN)/hispo-pl fit --config configs/demo.yaml --config configs/methods/hispo.yaml
 
 test: $(BIN)/hispo-pl
 	$(BIN)/python -m pytest -q

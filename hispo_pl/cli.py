@@ -290,15 +290,34 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
     return results
 
 
+def decision_lines(decisions: list[dict]) -> list[str]:
+    """One line per task after the first: each subspace's keep / prune decision and the ratio
+    the rule compared (``L_prev / L_curr`` against ``1 + eps``)."""
+    by_task: dict[int, list[str]] = {}
+    for d in decisions:
+        if d.get("decision") not in ("keep", "prune") or not d.get("l_curr"):
+            continue
+        ratio = d["l_prev"] / d["l_curr"]
+        by_task.setdefault(d["task"], []).append(
+            f"{d['subspace']} {d['decision']} ({ratio:.2f} vs {1 + d['eps']:.2f})"
+        )
+    return [f"task {t + 1}: " + ", ".join(parts) for t, parts in sorted(by_task.items())]
+
+
 def print_stream_results(results: dict) -> None:
     print(f"[hispo-pl] stream {' -> '.join(results['stream'])}")
     print(results["table"])
     parts = [f"{k} {100 * results[k]:.1f}" for k in ("PER", "BWT", "FWT") if k in results]
     if "MEM" in results:
-        parts.append(f"MEM {100 * results['MEM']:.1f}")
-    print("[hispo-pl] " + "  ".join(parts) + "  (x100)")
+        parts.append(f"MEM {results['MEM']:.2f} models")
+    print("[hispo-pl] " + "  ".join(parts))
     if results.get("anchors"):
         print(f"[hispo-pl] anchors per subspace: {results['anchors']}")
+    decisions = Path(results["run_dir"]) / "decisions.jsonl"
+    if decisions.exists():
+        records = [json.loads(x) for x in decisions.read_text().splitlines() if x]
+        for line in decision_lines(records):
+            print(f"[hispo-pl] {line}  (L_prev / L_curr vs 1 + eps)")
     print(f"[hispo-pl] wall time per task (s): {[round(t) for t in results['wall_time_s']]}")
     print(f"[hispo-pl] results: {results['run_dir']}/results.json")
 

@@ -73,3 +73,31 @@ def test_stream_fit_prints_metrics_logs_and_resumes(tiny_umaze, tmp_path, capsys
     again = json.loads((run_dir / "results.json").read_text())
     for key in ("R", "PER", "BWT", "anchors", "alphas", "wall_time_s"):
         assert again[key] == results[key], key
+
+
+def test_decision_lines_name_each_subspaces_decision_and_ratio():
+    from hispo_pl.cli import decision_lines
+
+    records = [
+        {"task": 0, "subspace": "high", "decision": "first", "l_curr": 0.2, "eps": 0.1},
+        {
+            "task": 1,
+            "subspace": "high",
+            "decision": "keep",
+            "l_prev": 0.9,
+            "l_curr": 0.05,
+            "eps": 0.1,
+        },
+        {
+            "task": 1,
+            "subspace": "low",
+            "decision": "prune",
+            "l_prev": 0.21,
+            "l_curr": 0.2,
+            "eps": 0.1,
+        },
+        {"task": 2, "subspace": "low", "decision": "zero-shot", "eps": {"low": 1.0}},
+    ]
+    assert decision_lines(records) == [
+        "task 2: high keep (18.00 vs 1.10), low prune (1.05 vs 1.10)"
+    ]
