@@ -517,8 +517,8 @@ def decisions_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
     ]
     for r in records:
         for d in r.decisions:
-            if d.get("decision") not in ("first", "keep", "prune"):
-                continue  # zero-shot records carry no losses
+            if d.get("decision") not in ("first", "keep", "prune") or d.get("rule") == "critic":
+                continue  # zero-shot records carry no losses; CSP decides by its critic
             ratio = d["l_prev"] / d["l_curr"] if d.get("l_prev") is not None else None
             train = (
                 d["l_prev_train"] / d["l_curr_train"]
@@ -538,7 +538,8 @@ def decisions_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
     legend = (
         "\nLosses: squared error of the deterministic prediction on the task's held-out "
         "episodes (train: on its training episodes). The rule prunes iff L_prev / L_curr ≤ "
-        "1 + ε. Convergence: relative fall of L_curr over the last 20 % of the task's steps.\n"
+        "1 + ε. Convergence: relative fall of L_curr over the last 20 % of the task's steps. "
+        "CSP's critic decisions (W, not losses) are in its decisions.jsonl (docs/csp.md).\n"
     )
     return "\n".join(lines) + "\n" + legend
 
