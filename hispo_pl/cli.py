@@ -144,6 +144,8 @@ def _config_problems(node, path: str = "") -> list[str]:
         "n_batches": (lambda v: v >= 1, "must be >= 1"),
         "eval_every": (lambda v: v >= 0, "must be >= 0 (0: only at the end)"),
         "dropout": (lambda v: 0 <= v < 1, "must be in [0, 1)"),
+        "holdout": (lambda v: 0 <= v < 1, "must be in [0, 1) (a share of episodes)"),
+        "convergence_window": (lambda v: 0 <= v < 1, "must be in [0, 1) (a share of steps)"),
         "lr": (lambda v: v > 0 and v == v, "must be > 0"),
     }
     if key in rules:

@@ -218,8 +218,9 @@ def test_a_non_finite_state_is_never_saved(tmp_path):
         (["--trainer.callbacks.init_args.episodes", "0"], "init_args.episodes = 0"),
         (["--ckpt_path", "some.ckpt"], "a stream resumes by itself"),
         (["--checkpoint_every", "-1"], "checkpoint_every = -1"),
+        (["--data.holdout", "1.5"], "data.holdout = 1.5"),
     ],
-    ids=["batch0", "steps0", "dropout1", "episodes0", "ckpt_path", "checkpoint_every"],
+    ids=["batch0", "steps0", "dropout1", "episodes0", "ckpt_path", "checkpoint_every", "holdout"],
 )
 def test_invalid_values_are_refused_before_training(tmp_path, monkeypatch, capsys, extra, named):
     (tmp_path / "some.ckpt").write_bytes(b"")
