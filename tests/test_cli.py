@@ -12,8 +12,11 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from hispo_pl.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
+DEMO = ROOT / "configs" / "demo.yaml"  # a two-task stream, combined with a method config
 CONFIGS = sorted(
-    p for p in (ROOT / "configs").rglob("*.yaml") if p.parent.name not in ("streams", "methods")
+    p
+    for p in (ROOT / "configs").rglob("*.yaml")
+    if p.parent.name not in ("streams", "methods") and p != DEMO
 )
 STREAM_CONFIGS = sorted((ROOT / "configs/streams").glob("*.yaml"))
 METHOD_CONFIGS = sorted((ROOT / "configs/methods").glob("*.yaml"))
@@ -99,6 +102,24 @@ def test_every_shipped_config_parses(config, capsys):
     printed = capsys.readouterr().out
     task = yaml.safe_load(config.read_text())["data"]["task"]
     assert "class_path: hispo_pl.modules." in printed and f"task: {task}" in printed
+
+
+def test_the_demo_is_a_two_task_hispo_stream(capsys):
+    with pytest.raises(SystemExit) as done:
+        main(
+            [
+                "fit",
+                "--config",
+                str(DEMO),
+                "--config",
+                str(ROOT / "configs/methods/hispo.yaml"),
+                "--print_config",
+            ]
+        )
+    assert done.value.code == 0
+    printed = yaml.safe_load(capsys.readouterr().out)
+    assert printed["data"]["stream"] == ["pointmaze-umaze-N[500]", "pointmaze-umaze-PO[500]"]
+    assert printed["model"]["class_path"] == "hispo_pl.modules.HiSPO"
 
 
 @pytest.mark.parametrize("stream", STREAM_CONFIGS, ids=lambda p: p.stem)
