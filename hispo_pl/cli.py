@@ -635,20 +635,66 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-SUBCOMMANDS = ("data", "evaluate", "render", "benchmark")
+VERBS: dict[str, str] = {
+    "fit": "train one task or a stream of tasks from YAML configs (LightningCLI: --help, "
+    "--print_config, dotted overrides)",
+    "evaluate": "roll out a checkpoint's policy on any task and print its success",
+    "data": "generate and list the local expert datasets (Minari)",
+    "render": "draw mazes from above with a dataset's or a policy's trajectories",
+    "benchmark": "run methods x seeds of a stream, then build the result tables",
+    "config": "list, show or copy the shipped configs (streams, methods, single-task)",
+}
+SUBCOMMANDS = tuple(v for v in VERBS if v != "fit")
+# Lightning's other entry points, and what they mean here
+NOT_HERE = {
+    "validate": "hispo-pl scores policies by rollouts: hispo-pl evaluate --ckpt RUN/task_XX.ckpt "
+    "--task SPEC",
+    "test": "hispo-pl scores policies by rollouts: hispo-pl evaluate --ckpt RUN/task_XX.ckpt "
+    "--task SPEC",
+    "predict": "a policy acts in an environment: hispo-pl evaluate or hispo-pl render --ckpt",
+}
+
+
+def usage() -> str:
+    """``hispo-pl --help``: every verb with one line, and where to start."""
+    width = max(map(len, VERBS))
+    lines = [
+        "usage: hispo-pl VERB [options]   (hispo-pl VERB --help for its options)",
+        "",
+        "Continual offline RL with hierarchical subspaces of policies (HiSPO).",
+        "",
+        "verbs:",
+        *(f"  {verb:<{width}}  {text}" for verb, text in VERBS.items()),
+        "",
+        "start with:",
+        "  hispo-pl fit --config configs/demo.yaml --config configs/methods/hispo.yaml",
+        "  hispo-pl config list",
+    ]
+    return "\n".join(lines)
 
 
 def _dispatch(argv: list[str]) -> int:
-    if argv and argv[0] == "data":
+    if not argv or argv[0] in ("-h", "--help"):
+        print(usage())
+        return 0
+    if argv[0] in NOT_HERE:
+        raise UserError(f"no {argv[0]!r} verb here; {NOT_HERE[argv[0]]}")
+    if argv[0] == "data":
         return data_main(argv[1:])
-    if argv and argv[0] == "evaluate":
+    if argv[0] == "evaluate":
         return evaluate_main(argv[1:])
-    if argv and argv[0] == "render":
+    if argv[0] == "render":
         return render_main(argv[1:])
-    if argv and argv[0] == "benchmark":
+    if argv[0] == "config":
+        from .config_files import config_main
+
+        return config_main(argv[1:])
+    if argv[0] == "benchmark":
         from .benchmark import main as benchmark_main
 
         return benchmark_main(argv[1:])
+    if argv[0] != "fit" and not argv[0].startswith("-"):
+        raise UserError(f"unknown verb {argv[0]!r}; the verbs are {', '.join(VERBS)}")
     try:
         run_lightning_cli(argv)
     except KeyboardInterrupt as err:

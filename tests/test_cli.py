@@ -166,3 +166,51 @@ def test_data_generate_rejects_unknown_maze(monkeypatch, tmp_path, capsys):
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
     assert main(["data", "generate", "pointmaze-hexagon", "--episodes", "1"]) == 2
     assert "unknown maze" in capsys.readouterr().err
+
+
+# --- the command's map and the shipped configs ---------------------------------------------
+
+
+@pytest.mark.parametrize("argv", [[], ["--help"]])
+def test_help_is_the_map_of_verbs(argv, capsys):
+    from hispo_pl.cli import VERBS
+
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    for verb in ("fit", "evaluate", "data", "render", "benchmark", "config"):
+        assert verb in VERBS
+        assert f"\n  {verb} " in out
+
+
+@pytest.mark.parametrize("verb", ["validate", "test", "predict", "frobnicate"])
+def test_verbs_that_do_not_exist_here_say_what_to_use(verb, capsys):
+    assert main([verb]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert ("evaluate" in err) if verb != "frobnicate" else ("fit, evaluate" in err)
+
+
+def test_config_list_show_and_copy(tmp_path, capsys):
+    assert main(["config", "list"]) == 0
+    names = capsys.readouterr().out.splitlines()[1:]
+    shipped = sorted(
+        p.relative_to(ROOT / "configs").with_suffix("").as_posix()
+        for p in (ROOT / "configs").rglob("*.yaml")
+    )
+    assert names == shipped
+    assert main(["config", "show", "pointmaze-1"]) == 0
+    assert capsys.readouterr().out == (ROOT / "configs/streams/pointmaze-1.yaml").read_text()
+    assert main(["config", "show", "pointmaze-umaze"]) == 2  # bc/ and hbc/ both have it
+    assert "hbc/pointmaze-umaze" in capsys.readouterr().err
+    assert main(["config", "copy", str(tmp_path / "mine")]) == 0
+    copied = sorted(p.relative_to(tmp_path / "mine").as_posix() for p in tmp_path.rglob("*.yaml"))
+    assert copied == sorted(f"{n}.yaml" for n in shipped)
+
+
+def test_packaged_configs_are_found_outside_a_checkout(tmp_path, monkeypatch):
+    from hispo_pl.config_files import config_names, config_root
+
+    monkeypatch.chdir(tmp_path)  # no ./configs here: the package's own copy
+    root = config_root()
+    assert (root / "methods" / "hispo.yaml").is_file()
+    assert "streams/pointmaze-1" in config_names(root)

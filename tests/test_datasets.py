@@ -214,8 +214,47 @@ def test_existing_dataset_is_not_regenerated(tiny_umaze, monkeypatch):
         raise AssertionError("collected again")
 
     monkeypatch.setattr(datasets, "collect_episode", boom)
-    assert generate_dataset("pointmaze-umaze", episodes=2, progress=False) == UMAZE_ID
+    assert generate_dataset("pointmaze-umaze", episodes=TINY_EPISODES, progress=False) == UMAZE_ID
     assert minari.list_local_datasets()[UMAZE_ID]["total_episodes"] == TINY_EPISODES
+
+
+@pytest.mark.parametrize(
+    "asked, named", [({"episodes": 2}, "episodes 6 (asked: 2)"), ({"seed": 3}, "seed 0 (asked: 3)")]
+)
+def test_other_settings_over_an_existing_dataset_need_overwrite(
+    tiny_umaze, monkeypatch, asked, named
+):
+    def boom(*args, **kwargs):
+        raise AssertionError("collected again")
+
+    monkeypatch.setattr(datasets, "collect_episode", boom)
+    kwargs = {"episodes": TINY_EPISODES, **asked}
+    with pytest.raises(datasets.DatasetSettingsError, match="--overwrite") as err:
+        generate_dataset("pointmaze-umaze", progress=False, **kwargs)
+    assert named in str(err.value)
+    assert minari.list_local_datasets()[UMAZE_ID]["total_episodes"] == TINY_EPISODES
+
+
+def test_generated_dataset_records_its_settings_and_requirements(tiny_umaze):
+    assert datasets.generation_settings(UMAZE_ID) == {
+        "episodes": TINY_EPISODES,
+        "seed": 0,
+        "noise": datasets.expert_class("pointmaze-umaze").action_noise,
+    }
+    requirements = minari.load_dataset(UMAZE_ID).storage.metadata["requirements"]
+    assert any(r.startswith("hispo-pl") for r in requirements)
+    assert any(r.startswith("mujoco") for r in requirements)
+
+
+def test_dataset_recovers_its_environment_by_gymnasium_id(tiny_umaze):
+    import hispo_pl.envs  # noqa: F401  (registers the task ids)
+
+    dataset = minari.load_dataset(UMAZE_ID)
+    env = dataset.recover_environment()
+    assert env.spec.id == "hispo_pl/PointMaze_UMaze-N-v3"
+    obs, _ = env.reset(seed=0)
+    assert obs["observation"].shape == (4,)
+    env.close()
 
 
 def test_interrupted_generation_resumes_identically(monkeypatch, tmp_path):
@@ -302,3 +341,38 @@ def test_goal_stats_edge_cases():
     # a goal that changes every step and is reached every step
     goals = np.arange(10, dtype=float)[:, None].repeat(2, axis=1)
     assert _goal_stats(goals, np.ones(10, dtype=bool), limit=1) == (10, 0)
+
+
+# --- which dataset a stream's task reads ------------------------------------------------
+
+
+def test_one_dataset_for_a_multi_maze_stream_is_refused():
+    from hispo_pl.data.datamodule import TaskDataModule
+    from hispo_pl.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="--data.datasets"):
+        TaskDataModule(stream="pointmaze-1", dataset="D4RL/pointmaze/umaze-v2")
+    with pytest.raises(ConfigError, match="pointmaze-antmaze"):
+        TaskDataModule(stream="pointmaze-1", datasets={"pointmaze-antmaze": "x"})
+    # one maze: one dataset is unambiguous
+    TaskDataModule(stream=["pointmaze-umaze-N", "pointmaze-umaze-PO"], dataset="some/id-v0")
+
+
+def test_each_maze_reads_the_dataset_named_for_it(tiny_umaze):
+    from hispo_pl.data.datamodule import TaskDataModule
+    from hispo_pl.data.tasks import parse_task
+
+    dm = TaskDataModule(stream="pointmaze-1", datasets={"pointmaze-medium": "elsewhere/medium-v0"})
+    assert dm.dataset_for(parse_task("pointmaze-medium-IO")) == "elsewhere/medium-v0"
+    large = parse_task("pointmaze-large-N")
+    assert dm.dataset_for(large) == large  # not named: our local data
+    dm = TaskDataModule(
+        task=f"pointmaze-umaze-PO[{TINY_EPISODES}]",
+        stream=[f"pointmaze-umaze-N[{TINY_EPISODES}]", f"pointmaze-umaze-PO[{TINY_EPISODES}]"],
+        datasets={"pointmaze-umaze": UMAZE_ID},
+        holdout=0.0,
+    )
+    dm.setup()
+    np.testing.assert_array_equal(
+        dm.data.observations, tiny_umaze.for_task(parse_task("pointmaze-umaze-PO")).observations
+    )

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -52,11 +53,21 @@ def _roll(env, actions, seed=SEED, options=RESET):
     return trajectory
 
 
+def _variant_wrapper(env):
+    """The VariantWrapper in ``env``'s wrapper chain, or None."""
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, VariantWrapper):
+            return env
+        env = env.env
+    return None
+
+
 def test_wrapper_only_for_non_normal_variants(pointmaze_envs):
-    assert not isinstance(pointmaze_envs["N"], VariantWrapper)
+    assert _variant_wrapper(pointmaze_envs["N"]) is None
     for v in ("IA", "IO", "PA", "PO"):
-        assert isinstance(pointmaze_envs[v], VariantWrapper)
-        assert pointmaze_envs[v].task == parse_task(f"pointmaze-umaze-{v}")
+        wrapper = _variant_wrapper(pointmaze_envs[v])
+        assert wrapper is not None
+        assert wrapper.task == parse_task(f"pointmaze-umaze-{v}")
 
 
 @pytest.mark.parametrize("variant", list(VARIANTS))
@@ -225,3 +236,36 @@ def test_generated_dataset_replays_in_wrapped_env(tiny_umaze, variant):
             assert np.abs(obs["achieved_goal"] - data.positions[first + 50]).max() > 1e-2
     finally:
         env.close()
+
+
+def test_every_task_is_a_gymnasium_id():
+    """``import hispo_pl.envs`` registers each maze variant and game maze with Gymnasium."""
+    import hispo_pl.envs  # noqa: F401
+    from hispo_pl.data.tasks import FAMILIES
+
+    for family, fam in FAMILIES.items():
+        for maze, defaults in fam.mazes.items():
+            for variant in fam.variants:
+                spec = gym.spec(parse_task(f"{family}-{maze}-{variant}").gym_id)
+                assert spec.max_episode_steps == defaults.max_episode_steps
+
+
+def test_gym_make_of_a_variant_id_is_the_task(pointmaze_envs):
+    env = gym.make("hispo_pl/PointMaze_UMaze-PO-v3")
+    task = parse_task("pointmaze-umaze-PO")
+    actions = _random_actions(30, 2, seed=1)
+    made = _roll(env, [transform_action(task, a) for a in actions])
+    base = _roll(pointmaze_envs["base"], actions)
+    for b, m in zip(base, made, strict=True):
+        np.testing.assert_array_equal(
+            m["observation"], transform_observation(task, b["observation"])
+        )
+    assert env.spec.max_episode_steps == task.defaults.max_episode_steps
+    env.close()
+
+
+def test_gym_make_of_a_game_id():
+    env = gym.make("hispo_pl/AmazeVille_HOOO-v0")
+    obs, _ = env.reset(seed=0)
+    assert obs["observation"].shape == (127,)
+    env.close()

@@ -9,6 +9,7 @@ import lightning as L
 import torch
 from torch.utils.data import DataLoader, IterableDataset
 
+from ..errors import ConfigError
 from .datasets import EpisodeArrays, load_episodes
 from .sampler import HERConfig, HERSampler, Horizon, MixedSampler, Strategy
 from .tasks import LOW_INPUTS, Task, parse_stream, parse_task
@@ -39,7 +40,10 @@ class TaskDataModule(L.LightningDataModule):
         task: task spec, e.g. ``pointmaze-umaze-N[500]`` (variant applied to the data);
             default: the stream's first task, else ``pointmaze-umaze-N[500]``.
         dataset: a Minari id to read instead of our local data for the task's maze, e.g.
-            ``D4RL/pointmaze/umaze-v2`` (downloaded when online).
+            ``D4RL/pointmaze/umaze-v2`` (downloaded when online); a single-maze run only.
+        datasets: a Minari id per maze of a stream, e.g.
+            ``{"pointmaze-umaze": "D4RL/pointmaze/umaze-v2"}``; mazes not named use our local
+            data.
         batch_size: samples per gradient step.
         waysteps: subgoal distance; default per maze from the paper.
         her_temperature: mean goal offset (steps); default per maze from the paper.
@@ -75,6 +79,7 @@ class TaskDataModule(L.LightningDataModule):
         self,
         task: str | None = None,
         dataset: str | None = None,
+        datasets: dict[str, str] | None = None,
         batch_size: int = 1024,
         waysteps: int | None = None,
         her_temperature: float | None = None,
@@ -105,7 +110,21 @@ class TaskDataModule(L.LightningDataModule):
                 f"a stream's tasks must share one environment family (one set of observation "
                 f"and action sizes); got {', '.join(sorted(families))} in {self.stream}"
             )
+        mazes = sorted({parse_task(t).dataset_name for t in self.stream or [self.task.spec]})
+        if dataset is not None and len(mazes) > 1:
+            raise ConfigError(
+                f"--data.dataset names one dataset, but the stream has {len(mazes)} mazes "
+                f"({', '.join(mazes)}); name one per maze with --data.datasets, e.g. "
+                f'\'{{"{mazes[0]}": "<minari id>", ...}}\''
+            )
+        unknown = sorted(set(datasets or {}) - set(mazes))
+        if unknown:
+            raise ConfigError(
+                f"--data.datasets names {', '.join(unknown)}, not a maze of this run "
+                f"({', '.join(mazes)})"
+            )
         self.dataset = dataset
+        self.datasets = dict(datasets or {})
         self.batch_size = batch_size
         self._her_options = (waysteps, her_temperature, her_strategy, goal_horizon)
         self.her = self.her_config(self.task)
@@ -174,18 +193,25 @@ class TaskDataModule(L.LightningDataModule):
         """Leading action entries that are buttons (the game mazes' gamepad)."""
         return self.task.env_family.binary_actions
 
+    def dataset_for(self, task: Task) -> str | Task:
+        """Where ``task``'s episodes come from: the Minari id named for its maze, else our
+        local dataset of the maze (made on first use)."""
+        return self.datasets.get(task.dataset_name) or self.dataset or task
+
     def prepare_data(self) -> None:
-        load_episodes(self.dataset or self.task)  # generates our local data on first use
+        load_episodes(self.dataset_for(self.task))  # generates our local data on first use
 
     def setup(self, stage: str | None = None) -> None:
         if self.data is None:
-            self.data = load_episodes(self.dataset or self.task).for_task(self.task)
+            self.data = load_episodes(self.dataset_for(self.task)).for_task(self.task)
             train, heldout = self.data.split_episodes(self.holdout)
             self.splits = {"train": train, "heldout": heldout}
         if self.replay and not self.replayed:  # earlier tasks' training episodes only
             self.replayed = [
                 (
-                    load_episodes(task).for_task(task).split_episodes(self.holdout)[0],
+                    load_episodes(self.dataset_for(task))
+                    .for_task(task)
+                    .split_episodes(self.holdout)[0],
                     self.her_config(task),
                 )
                 for task in self.earlier_tasks()

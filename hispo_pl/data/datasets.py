@@ -328,20 +328,72 @@ def collect_game_episode(env, expert, rng: np.random.Generator, seed: int, steps
     return _episode_arrays(record, actions, rewards, success, flipped=False)
 
 
-def make_expert(name: str, env, expert_weights: str | None = None):
-    """The expert of a dataset family (``expert_weights``: the ant policy's file)."""
-    from ..envs.experts import AntMazeExpert, PointMazeExpert
-
+def expert_class(name: str | Task) -> type:
+    """The expert class of a maze's family (its class attributes hold the collection noise)."""
     family = parse_task(name).family
     if family == "pointmaze":
-        return PointMazeExpert(env)
+        from ..envs.experts import PointMazeExpert
+
+        return PointMazeExpert
     if family == "antmaze":
-        return AntMazeExpert(env, expert_weights)
+        from ..envs.experts import AntMazeExpert
+
+        return AntMazeExpert
     if family in GAME_FAMILIES:
         from ..envs.videogame.expert import GameExpert
 
-        return GameExpert(env)
+        return GameExpert
     raise NotImplementedError(f"no expert for the {family!r} family")
+
+
+def make_expert(name: str, env, expert_weights: str | None = None):
+    """The expert of a dataset family (``expert_weights``: the ant policy's file)."""
+    cls = expert_class(name)
+    if parse_task(name).family == "antmaze":
+        return cls(env, expert_weights)
+    return cls(env)
+
+
+class DatasetSettingsError(UserError, ValueError):
+    """A dataset asked for with other settings than the stored one was made with."""
+
+
+GENERATION_FILE = "hispo_generation.json"  # beside Minari's metadata: how the data were made
+
+
+def generation_settings(dataset_id: str) -> dict:
+    """The settings a stored local dataset was generated with (``episodes``, and ``seed`` and
+    ``noise`` for datasets made since they were recorded)."""
+    import minari
+
+    path = dataset_path(dataset_id) / GENERATION_FILE
+    if path.exists():
+        return json.loads(path.read_text())
+    return {"episodes": minari.load_dataset(dataset_id).total_episodes}
+
+
+def settings_conflict(stored: dict, asked: dict) -> str | None:
+    """Which of the asked generation settings differ from the stored ones (settings a stored
+    dataset did not record are not compared), or None."""
+    diffs = [
+        f"{key} {stored[key]} (asked: {value})"
+        for key, value in asked.items()
+        if key in stored and stored[key] != value
+    ]
+    return ", ".join(diffs) or None
+
+
+def package_requirements() -> list[str]:
+    """Pip-style pins of what reproduces a dataset's environment (Minari's ``requirements``)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    pins = []
+    for package in ("hispo-pl", "gymnasium", "gymnasium-robotics", "mujoco"):
+        try:
+            pins.append(f"{package}=={version(package)}")
+        except PackageNotFoundError:
+            pins.append(package)
+    return pins
 
 
 def generate_dataset(
@@ -373,19 +425,26 @@ def generate_dataset(
     name = task.dataset_name
     dataset_id = local_dataset_id(name)
     final = dataset_path(dataset_id)
+    episodes = episodes or default_episodes(task)
+    noise = expert_class(task).action_noise if noise is None else noise
+    settings = {"episodes": episodes, "seed": seed, "noise": noise}
     problem = dataset_problem(dataset_id)
     if problem is None and not overwrite:
+        conflict = settings_conflict(generation_settings(dataset_id), settings)
+        if conflict is not None:
+            raise DatasetSettingsError(
+                f"{dataset_id} already exists with {conflict}; pass --overwrite to replace it, "
+                "or leave the settings at the stored ones to use it as it is"
+            )
         return dataset_id
     if problem is None:
         minari.delete_dataset(dataset_id)
     elif problem != "missing":  # cut short by a kill while it was written: rebuild it
         shutil.rmtree(final)
     steps = task.defaults.max_episode_steps
-    episodes = episodes or default_episodes(task)
     game = task.family in GAME_FAMILIES
     env = make_env(name) if game else make_env(name, continuing_task=True, reset_target=True)
     expert = make_expert(name, env, expert_weights)
-    noise = expert.action_noise if noise is None else noise
     staging = dataset_path("") / ".staging" / f"{name}-seed{seed}-noise{noise}"
     staging.mkdir(parents=True, exist_ok=True)
     ok = failed = flips = kept_steps = 0
@@ -467,7 +526,9 @@ def generate_dataset(
             author="hispo-pl",
             code_permalink="https://github.com/hispo-pl/hispo-pl",
             description=description,
+            requirements=package_requirements(),
         )
+        (build / dataset_id / GENERATION_FILE).write_text(json.dumps(settings))
     final.parent.mkdir(parents=True, exist_ok=True)
     namespace_meta = build / NAMESPACE / "namespace_metadata.json"
     if namespace_meta.exists() and not (final.parent / namespace_meta.name).exists():

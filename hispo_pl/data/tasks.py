@@ -180,6 +180,16 @@ class Task:
         return self.env_family.env_id.format(self.defaults.env_name)
 
     @property
+    def gym_id(self) -> str:
+        """The Gymnasium id of the task as hispo-pl evaluates it (registered on ``import
+        hispo_pl.envs``): ``hispo_pl/PointMaze_UMaze-PO-v3`` for a maze variant; the game mazes,
+        which have only the normal variant, keep their own id."""
+        if self.family in GAME_FAMILIES:
+            return self.env_id
+        name, version = self.env_id.rsplit("-v", 1)
+        return f"hispo_pl/{name}-{self.variant}-v{version}"
+
+    @property
     def dataset_name(self) -> str:
         """Datasets are stored once per maze, in the normal variant."""
         return f"{self.family}-{self.maze}"

@@ -9,46 +9,66 @@ import gymnasium as gym
 from ..data.tasks import FAMILIES, GAME_FAMILIES, Task, parse_task
 from .wrappers import VariantWrapper
 
-_registered = False
+_robotics_registered = False
 
 
-def _register() -> None:
-    global _registered
-    if not _registered:
+def register_tasks() -> None:
+    """Register every task with Gymnasium under :attr:`Task.gym_id`: each maze of PointMaze and
+    AntMaze in each of its variants (``hispo_pl/AntMaze_Medium-IA-v5``) and each game maze
+    (``hispo_pl/AmazeVille_HOOO-v0``). Entry points are named by string, so registering
+    imports no simulator. Runs on ``import hispo_pl.envs``; a second call changes nothing."""
+    for family, fam in FAMILIES.items():
+        for maze, defaults in fam.mazes.items():
+            for variant in fam.variants:
+                task = Task(family, maze, variant)
+                if task.gym_id in gym.registry:
+                    continue
+                game = family in GAME_FAMILIES
+                gym.register(
+                    id=task.gym_id,
+                    entry_point=(
+                        "hispo_pl.envs.videogame.env:GameNavEnv" if game else f"{__name__}:task_env"
+                    ),
+                    kwargs={"game": family, "maze": maze}
+                    if game
+                    else {"task": f"{family}-{maze}-{variant}"},
+                    max_episode_steps=defaults.max_episode_steps,
+                    disable_env_checker=True,
+                )
+
+
+def task_env(task: str | Task, **kwargs) -> gym.Env:
+    """The entry point of a maze task's Gymnasium id: gymnasium-robotics' maze env, built
+    without its own wrappers (``gym.make`` of the task id adds the step limit), seen through
+    the task's variant. The maze XML that gymnasium-robotics writes into the temp dir on every
+    construction is deleted once the model is loaded."""
+    global _robotics_registered
+    task = parse_task(task)
+    if not _robotics_registered:
         import gymnasium_robotics
 
         gym.register_envs(gymnasium_robotics)
-        for family in GAME_FAMILIES:
-            fam = FAMILIES[family]
-            for maze, defaults in fam.mazes.items():
-                gym.register(
-                    id=fam.env_id.format(defaults.env_name),
-                    entry_point="hispo_pl.envs.videogame.env:GameNavEnv",
-                    kwargs={"game": family, "maze": maze},
-                    max_episode_steps=defaults.max_episode_steps,
-                )
-        _registered = True
+        _robotics_registered = True
+    base = gym.spec(task.env_id)
+    creator = gym.envs.registration.load_env_creator(base.entry_point)
+    env = creator(**{**base.kwargs, **task.env_family.env_kwargs, **kwargs})
+    tmp_xml = getattr(env, "tmp_xml_file_path", None)
+    if tmp_xml and os.path.exists(tmp_xml):
+        os.remove(tmp_xml)
+    return VariantWrapper(env, task) if task.variant != "N" else env
 
 
 def make_env(task: str | Task, *, continuing_task: bool = False, **kwargs) -> gym.Env:
-    """Build the gymnasium env of ``task`` (variant applied by a wrapper).
+    """``gym.make`` of ``task``'s registered id (its variant applied, its step limit set).
 
     ``continuing_task=False`` (our default, unlike gymnasium-robotics') ends an episode on
     success, as evaluation needs; data collection passes ``True``. Extra kwargs go to
-    ``gym.make`` (e.g. ``max_episode_steps``). The maze XML that gymnasium-robotics writes
-    into the temp dir on every construction is deleted once the model is loaded.
+    ``gym.make`` (e.g. ``max_episode_steps``).
     """
-    task = parse_task(task)
-    _register()
-    env_kwargs = {**task.env_family.env_kwargs, "continuing_task": continuing_task, **kwargs}
-    env_kwargs.setdefault("max_episode_steps", task.defaults.max_episode_steps)
-    env = gym.make(task.env_id, **env_kwargs)
-    tmp_xml = getattr(env.unwrapped, "tmp_xml_file_path", None)
-    if tmp_xml and os.path.exists(tmp_xml):
-        os.remove(tmp_xml)
-    if task.variant != "N":
-        env = VariantWrapper(env, task)
-    return env
+    return gym.make(parse_task(task).gym_id, continuing_task=continuing_task, **kwargs)
+
+
+register_tasks()
 
 
 def agent_flipped(env: gym.Env) -> bool:
@@ -62,4 +82,4 @@ def agent_flipped(env: gym.Env) -> bool:
     return bool(1.0 - 2.0 * (qx * qx + qy * qy) < 0.0)
 
 
-__all__ = ["make_env", "agent_flipped", "VariantWrapper"]
+__all__ = ["make_env", "register_tasks", "task_env", "agent_flipped", "VariantWrapper"]

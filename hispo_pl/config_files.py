@@ -1,0 +1,71 @@
+"""The YAML configs hispo-pl ships (streams, methods, single-task HBC / BC, the demo), found
+the same way in a checkout (``./configs``) and in an installed package (``hispo_pl.configs``),
+and the ``hispo-pl config`` verb that lists, shows and copies them."""
+
+from __future__ import annotations
+
+import argparse
+from importlib import resources
+from pathlib import Path
+
+from .errors import UserError
+
+
+def config_root() -> Path:
+    """``./configs`` when run from a checkout (so edits there apply), else the packaged copy."""
+    local = Path("configs")
+    if (local / "methods").is_dir() and (local / "streams").is_dir():
+        return local
+    return Path(str(resources.files("hispo_pl.configs")))
+
+
+def config_names(root: Path | None = None) -> list[str]:
+    """Every shipped config as ``group/name`` (``methods/hispo``) or ``name`` (``demo``)."""
+    root = root or config_root()
+    return sorted(p.relative_to(root).with_suffix("").as_posix() for p in root.rglob("*.yaml"))
+
+
+def config_path(name: str, root: Path | None = None) -> Path:
+    """The file of a config named ``methods/hispo``, ``hispo`` (when one group has it) or a
+    path; an unknown or ambiguous name is a user error listing what exists."""
+    root = root or config_root()
+    if Path(name).suffix in (".yaml", ".yml") and Path(name).is_file():
+        return Path(name)
+    names = config_names(root)
+    stem = name.removesuffix(".yaml")
+    matches = [n for n in names if n == stem or n.rsplit("/", 1)[-1] == stem]
+    if len(matches) == 1:
+        return root / f"{matches[0]}.yaml"
+    if not matches:
+        raise UserError(f"no config named {name!r}; shipped configs: {', '.join(names)}")
+    raise UserError(f"{name!r} names several configs ({', '.join(matches)}); give one of them")
+
+
+def config_main(argv: list[str]) -> int:
+    """``hispo-pl config list|show NAME|copy DEST``."""
+    parser = argparse.ArgumentParser(
+        prog="hispo-pl config",
+        description="The configs hispo-pl ships: streams, methods, single-task HBC/BC, the demo",
+    )
+    sub = parser.add_subparsers(dest="cmd", required=True)
+    sub.add_parser("list", help="every shipped config, by name")
+    show = sub.add_parser("show", help="print a config (e.g. methods/hispo, pointmaze-1)")
+    show.add_argument("name")
+    copy = sub.add_parser("copy", help="copy every shipped config into DEST, to edit them")
+    copy.add_argument("dest", type=Path)
+    args = parser.parse_args(argv)
+    root = config_root()
+    if args.cmd == "list":
+        print(f"# {root}")
+        print("\n".join(config_names(root)))
+    elif args.cmd == "show":
+        print(config_path(args.name, root).read_text(), end="")
+    else:
+        if args.dest.exists() and any(args.dest.iterdir()):
+            raise UserError(f"{args.dest} exists and is not empty; choose a new folder")
+        for name in config_names(root):
+            target = args.dest / f"{name}.yaml"
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_text((root / f"{name}.yaml").read_text())
+        print(f"copied {len(config_names(root))} configs to {args.dest}")
+    return 0
