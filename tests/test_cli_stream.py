@@ -50,6 +50,7 @@ def test_stream_fit_prints_metrics_logs_and_resumes(tiny_umaze, tmp_path, capsys
     )
     assert results["MEM"] == pytest.approx(results["stored_bytes"] / module_bytes(reference))
     assert f"anchors per subspace: {results['anchors']}" in out
+    assert f"tensorboard --logdir {run_dir}" in out
     assert (run_dir / "task_01.ckpt").exists() and (run_dir / "task_02.ckpt").exists()
 
     events = list(run_dir.rglob("events.out.tfevents.*"))
