@@ -81,7 +81,7 @@ class TaskCheckpoint(L.Callback):
         step = trainer.global_step
         if self.every > 0 and step % self.every == 0 and 0 < step < trainer.max_steps:
             tmp = self.path.with_name(f".{self.path.name}.tmp")
-            trainer.save_checkpoint(tmp)
+            trainer.save_checkpoint(tmp, weights_only=False)  # the full training state
             os.replace(tmp, self.path)
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
@@ -366,7 +366,7 @@ class ContinualLoop:
         datamodule = self.make_datamodule(self.stream[k])
         fit_interruptibly(trainer, self.module, datamodule, ckpt_path=resume, weights_only=True)
         row = self._row_from(trainer, k)
-        trainer.save_checkpoint(checkpoint_path(self.run_dir, k))
+        trainer.save_checkpoint(checkpoint_path(self.run_dir, k), weights_only=False)
         if self.config_text is not None:
             atomic_write_text(task_config_path(self.run_dir, k), self.config_text)
         progress["rows"].append(row)
