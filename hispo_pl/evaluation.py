@@ -60,8 +60,11 @@ def reset_options(env, episodes: int, seed: int) -> list[dict]:
 class RolloutEvaluator:
     """Runs a policy on a task for ``episodes`` seeded episodes.
 
-    Environments are built once (``min(episodes, max_envs)`` of them) and reused across calls,
-    so periodic evaluation during training costs no env construction.
+    ``min(episodes, max_envs)`` environments are built once and reused across calls, so
+    periodic evaluation during training costs no env construction; an env whose episode ends
+    starts the next waiting one at once, so a few envs serve many episodes without waiting
+    for the slowest of a batch. Episodes are seeded by their index, so which env runs one
+    changes nothing.
     """
 
     def __init__(
@@ -69,7 +72,7 @@ class RolloutEvaluator:
         task: str | Task,
         episodes: int = 100,
         seed: int = 0,
-        max_envs: int = 100,
+        max_envs: int = 50,
         max_episode_steps: int | None = None,
     ):
         self.task = parse_task(task)
@@ -84,19 +87,55 @@ class RolloutEvaluator:
 
     def run(self, policy: PolicyFn, progress: bool = False, record: bool = False) -> RolloutResult:
         """Success, lengths and flips of every episode; ``record`` also keeps each episode's
-        positions (for pictures)."""
+        positions (for pictures). One policy call per step for all running episodes."""
         successes = np.zeros(self.episodes, dtype=bool)
         flips = np.zeros(self.episodes, dtype=bool)
         lengths = np.zeros(self.episodes, dtype=np.int64)
-        paths: list[np.ndarray] = [np.zeros((0, 0))] * self.episodes
-        n_envs = len(self.envs)
-        for wave in tqdm(
-            range(0, self.episodes, n_envs), desc=f"eval {self.task}", disable=not progress
-        ):
-            ids = list(range(wave, min(wave + n_envs, self.episodes)))
-            successes[ids], lengths[ids], flips[ids], wave_paths = self._run_wave(policy, ids)
-            for k, path in zip(ids, wave_paths, strict=True):
-                paths[k] = path
+        paths: list[list[np.ndarray]] = [[] for _ in range(self.episodes)]
+        waiting = iter(range(self.episodes))
+        running: list[int | None] = [None] * len(self.envs)  # episode of each env
+        obs: list[dict] = [{}] * len(self.envs)
+        bar = tqdm(total=self.episodes, desc=f"eval {self.task}", disable=not progress)
+
+        def start_next(slot: int) -> None:
+            k = running[slot] = next(waiting, None)
+            if k is not None:
+                options = self.options[k]
+                obs[slot] = self.envs[slot].reset(seed=self.seed * 100_003 + k, options=options)[0]
+                paths[k].append(obs[slot]["achieved_goal"])
+
+        for slot in range(len(self.envs)):
+            start_next(slot)
+        while any(k is not None for k in running):
+            slots = [s for s, k in enumerate(running) if k is not None]
+            batch = {
+                key: torch.as_tensor(np.stack([obs[s][key] for s in slots]), dtype=torch.float32)
+                for key in ("observation", "achieved_goal", "desired_goal")
+            }
+            previous = torch.as_tensor(
+                np.stack(
+                    [paths[running[s]][-2 if len(paths[running[s]]) > 1 else -1] for s in slots]
+                ),
+                dtype=torch.float32,
+            )
+            velocity = position_velocity(batch["achieved_goal"], previous, self.step_seconds)
+            actions = policy(
+                batch["observation"], batch["achieved_goal"], batch["desired_goal"], velocity
+            )
+            for a, s in zip(actions.detach().cpu().numpy(), slots, strict=True):
+                k = running[s]
+                obs[s], _, terminated, truncated, info = self.envs[s].step(a)
+                paths[k].append(obs[s]["achieved_goal"])
+                lengths[k] += 1
+                if info.get("success", False):
+                    successes[k] = True
+                elif agent_flipped(self.envs[s]):
+                    flips[k] = True
+                ended = terminated or truncated or successes[k] or flips[k]
+                if ended or lengths[k] >= self.max_steps:
+                    bar.update(1)
+                    start_next(s)
+        bar.close()
         return RolloutResult(
             float(successes.mean()),
             float(lengths.mean()),
@@ -104,50 +143,8 @@ class RolloutEvaluator:
             successes,
             lengths,
             flips,
-            paths if record else None,
+            [np.asarray(p) for p in paths] if record else None,
         )
-
-    def _run_wave(self, policy: PolicyFn, ids: list[int]) -> tuple:
-        """Successes, lengths, flips and position paths of the episodes ``ids``; a flipped
-        episode ends."""
-        envs = self.envs[: len(ids)]
-        obs = [
-            env.reset(seed=self.seed * 100_003 + k, options=self.options[k])[0]
-            for env, k in zip(envs, ids, strict=True)
-        ]
-        paths = [[o["achieved_goal"]] for o in obs]
-        active = np.ones(len(ids), dtype=bool)
-        success = np.zeros(len(ids), dtype=bool)
-        flipped = np.zeros(len(ids), dtype=bool)
-        length = np.zeros(len(ids), dtype=np.int64)
-        for _ in range(self.max_steps):
-            idx = np.flatnonzero(active)
-            if len(idx) == 0:
-                break
-            batch = {
-                k: torch.as_tensor(np.stack([obs[i][k] for i in idx]), dtype=torch.float32)
-                for k in ("observation", "achieved_goal", "desired_goal")
-            }
-            previous = torch.as_tensor(
-                np.stack([paths[i][-2 if len(paths[i]) > 1 else -1] for i in idx]),
-                dtype=torch.float32,
-            )
-            velocity = position_velocity(batch["achieved_goal"], previous, self.step_seconds)
-            actions = policy(
-                batch["observation"], batch["achieved_goal"], batch["desired_goal"], velocity
-            )
-            actions = actions.detach().cpu().numpy()
-            for a, i in zip(actions, idx, strict=True):
-                obs[i], _, terminated, truncated, info = envs[i].step(a)
-                paths[i].append(obs[i]["achieved_goal"])
-                length[i] += 1
-                if info.get("success", False):
-                    success[i] = True
-                elif agent_flipped(envs[i]):
-                    flipped[i] = True
-                if terminated or truncated or success[i] or flipped[i]:
-                    active[i] = False
-        return success, length, flipped, [np.asarray(p) for p in paths]
 
     def close(self) -> None:
         for env in self.envs:

@@ -132,9 +132,10 @@ def test_envs_are_reused_and_results_repeat(monkeypatch):
     assert first.lengths.min() < 80
 
 
-def test_waves_match_one_env_per_episode():
-    """With fewer envs than episodes (several waves) each episode is the same as with one env
-    per episode: episodes are seeded by their index, not by the env that runs them."""
+def test_fewer_envs_than_episodes_match_one_env_per_episode():
+    """With fewer envs than episodes (an env starts the next episode when its own ends) each
+    episode is the same as with one env per episode: episodes are seeded by their index, not
+    by the env that runs them."""
     kwargs = dict(episodes=5, seed=2, max_episode_steps=60)
     waves = RolloutEvaluator("pointmaze-umaze", max_envs=2, **kwargs)
     single = RolloutEvaluator("pointmaze-umaze", max_envs=5, **kwargs)
