@@ -322,7 +322,8 @@ def print_stream_results(results: dict) -> None:
             print(f"[hispo-pl] {line}  (L_prev / L_curr vs 1 + eps)")
     print(f"[hispo-pl] wall time per task (s): {[round(t) for t in results['wall_time_s']]}")
     print(f"[hispo-pl] results: {results['run_dir']}/results.json")
-    print(f"[hispo-pl] curves and decisions: tensorboard --logdir {results['run_dir']}")
+    if any(Path(results["run_dir"]).glob("events.out.tfevents.*")):
+        print(f"[hispo-pl] curves and decisions: tensorboard --logdir {results['run_dir']}")
 
 
 def check_fit_args(argv: list[str]) -> str | None:

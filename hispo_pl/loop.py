@@ -28,6 +28,7 @@ from .errors import Interrupted, RunDirError
 from .io import atomic_write_text
 from .metrics import continual_metrics, memory_ratio, module_bytes, results_row_table
 from .modules.hispo import SubspacePolicy
+from .stream_report import log_stream_end, log_task_end
 
 PROGRESS_FILE = "progress.json"
 RESULTS_FILE = "results.json"
@@ -227,6 +228,7 @@ class ContinualLoop:
         checkpoint_every: save the task in progress every this many steps
             (``task_XX.partial.ckpt``, see :class:`TaskCheckpoint`); a rerun resumes the task
             from there. 0: only whole tasks are kept.
+        pictures: after each task, draw ten of its rollouts on its maze for TensorBoard.
     """
 
     def __init__(
@@ -242,6 +244,7 @@ class ContinualLoop:
         fingerprint: dict | None = None,
         config_text: str | None = None,
         checkpoint_every: int = 0,
+        pictures: bool = True,
     ):
         self.stream = [parse_task(t).spec for t in stream]
         self.module = module
@@ -254,6 +257,8 @@ class ContinualLoop:
         self.fingerprint = fingerprint
         self.config_text = config_text
         self.checkpoint_every = checkpoint_every
+        self.pictures = pictures  # a rollout picture per task in TensorBoard
+        self._loggers: list = []  # the trainers' loggers, for the stream-level report
 
     # --- progress on disk -------------------------------------------------------------------
 
@@ -346,7 +351,23 @@ class ContinualLoop:
                 ) from None
         results = self._results(progress)
         atomic_write_text(self.run_dir / RESULTS_FILE, json.dumps(results, indent=1))
+        if self._loggers:
+            log_stream_end(self._loggers, results, self._decisions(), self.fingerprint or {})
         return results
+
+    def _decisions(self) -> list[dict]:
+        path = self.run_dir / DECISIONS_FILE
+        lines = path.read_text().splitlines() if path.exists() else []
+        return [json.loads(line) for line in lines if line.strip()]
+
+    def _rollout_picture(self, k: int):
+        """Ten of task ``k``'s scored rollouts drawn on its maze, for TensorBoard."""
+        from .evaluation import module_policy
+        from .render import maze_figure, rollout_paths
+
+        task = self.stream[k]
+        overlay = rollout_paths(task, module_policy(self.module, task=k), episodes=10)
+        return maze_figure([task], [overlay])
 
     def _train_task(self, k: int, progress: dict) -> None:
         """Train task ``k`` and record its checkpoint, configuration and row of R."""
@@ -366,6 +387,10 @@ class ContinualLoop:
         datamodule = self.make_datamodule(self.stream[k])
         fit_interruptibly(trainer, self.module, datamodule, ckpt_path=resume, weights_only=True)
         row = self._row_from(trainer, k)
+        self._loggers = list(trainer.loggers)
+        if self._loggers:
+            picture = self._rollout_picture(k) if self.pictures else None
+            log_task_end(self._loggers, k, row, picture)
         trainer.save_checkpoint(checkpoint_path(self.run_dir, k), weights_only=False)
         if self.config_text is not None:
             atomic_write_text(task_config_path(self.run_dir, k), self.config_text)

@@ -66,6 +66,7 @@ def test_stream_fit_prints_metrics_logs_and_resumes(tiny_umaze, tmp_path, capsys
     counts = acc.Scalars("anchors/high/count")
     assert [s.step for s in counts] == [1, 2]
     assert counts[-1].value == results["anchors"]["high"]
+    _assert_stream_report(run_dir, results)
 
     # the same command again: every task is finished, nothing trains, same results
     assert main(_stream_args(tmp_path)) == 0
@@ -102,3 +103,50 @@ def test_decision_lines_name_each_subspaces_decision_and_ratio():
     assert decision_lines(records) == [
         "task 2: high keep (18.00 vs 1.10), low prune (1.05 vs 1.10)"
     ]
+
+
+def _assert_stream_report(run_dir: Path, results: dict) -> None:
+    """What a user sees of a finished stream in TensorBoard: stream metrics (also in the
+    HParams tab, with no placeholder), forgetting curves at step = tasks trained, the success
+    matrix and anchor weights as images, a rollout picture per task, decisions as text."""
+    acc = EventAccumulator(str(run_dir), size_guidance={"images": 0, "tensors": 0})
+    acc.Reload()
+    tags = acc.Tags()
+    for metric in ("PER", "BWT", "MEM"):
+        (point,) = acc.Scalars(f"stream/{metric}")
+        assert point.step == 2 and point.value == pytest.approx(results[metric])
+    assert "hp_metric" not in tags["scalars"]
+    curve = acc.Scalars("stream/success/T01")
+    assert [(p.step, p.value) for p in curve] == [(1, results["R"][0][0]), (2, results["R"][1][0])]
+    weight = acc.Scalars("alpha/low/T02/anchor_2")[0].value
+    assert weight == pytest.approx(results["alphas"]["low"][1][1])
+    assert {
+        "stream/success_matrix",
+        "alpha/high",
+        "alpha/low",
+        "rollouts/T01",
+        "rollouts/T02",
+    } <= set(tags["images"])
+    assert {"stream/decisions/text_summary", "stream/success_matrix/text_summary"} <= set(
+        tags["tensors"]
+    )
+    experiment = acc.PluginTagToContent("hparams")["_hparams_/experiment"]
+    assert b"stream/PER" in experiment and b"stream/MEM" in experiment
+
+
+def test_a_stream_logs_its_report_through_any_logger(tiny_umaze, tmp_path, capsys):
+    """The run directory and the stream report do not depend on TensorBoard: with a CSV logger
+    the stream finishes and its metrics.csv holds the stream scalars."""
+    logger = {
+        "class_path": "lightning.pytorch.loggers.CSVLogger",
+        "init_args": {"save_dir": str(tmp_path), "name": "csv", "version": "seed0"},
+    }
+    args = tiny_stream_args("hispo", tmp_path, STREAM, "--trainer.logger", json.dumps(logger))
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    run_dir = tmp_path / "csv" / "seed0"
+    assert (run_dir / "results.json").exists() and "tensorboard --logdir" not in out
+    header = (run_dir / "metrics.csv").read_text().splitlines()[0].split(",")
+    assert {"stream/PER", "stream/MEM", "stream/success/T02", "alpha/low/T02/anchor_1"} <= set(
+        header
+    )
