@@ -260,9 +260,26 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
     def make_datamodule(task: str) -> TaskDataModule:
         return TaskDataModule(**{**data_args, "task": task, "stream": datamodule.stream})
 
+    first_trainer = [True]
+
     def make_trainer(k: int):
+        """Task ``k``'s Trainer: the model summary once per stream, and progress as lines when
+        the output is not a terminal."""
+        from .console import StepLines, interactive
+
+        extra: dict = {} if first_trainer[0] else {"enable_model_summary": False}
+        first_trainer[0] = False
+        task_callbacks = list(callbacks)
+        max_steps = config["trainer"].get("max_steps") or 0
+        if not interactive() and max_steps > 0:
+            label = f"task {k + 1}/{len(datamodule.stream)}"
+            task_callbacks.append(StepLines(label, every=max(1, max_steps // 10)))
+            extra["enable_progress_bar"] = False
         return cli.instantiate_trainer(
-            callbacks=list(callbacks), enable_checkpointing=False, default_root_dir=run_dir
+            callbacks=task_callbacks,
+            enable_checkpointing=False,
+            default_root_dir=run_dir,
+            **extra,
         )
 
     reference = module_bytes(model.reference_model())  # MEM's unit: one single-task model
@@ -295,15 +312,15 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
 def decision_lines(decisions: list[dict]) -> list[str]:
     """One line per task after the first: each subspace's keep / prune decision and the ratio
     the rule compared (``L_prev / L_curr`` against ``1 + eps``)."""
-    by_task: dict[int, list[str]] = {}
-    for d in decisions:
-        if d.get("decision") not in ("keep", "prune") or not d.get("l_curr"):
-            continue
-        ratio = d["l_prev"] / d["l_curr"]
-        by_task.setdefault(d["task"], []).append(
-            f"{d['subspace']} {d['decision']} ({ratio:.2f} vs {1 + d['eps']:.2f})"
-        )
-    return [f"task {t + 1}: " + ", ".join(parts) for t, parts in sorted(by_task.items())]
+    from .console import decision_parts
+
+    tasks = sorted({d["task"] for d in decisions})
+    lines = []
+    for t in tasks:
+        parts = decision_parts([d for d in decisions if d["task"] == t])
+        if parts:
+            lines.append(f"task {t + 1}: " + ", ".join(parts))
+    return lines
 
 
 def print_stream_results(results: dict) -> None:

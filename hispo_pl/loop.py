@@ -22,6 +22,7 @@ import lightning as L
 import numpy as np
 import torch
 
+from .console import lightning_notices_once, quiet_lightning_notices, say, task_header, task_summary
 from .data.datamodule import TaskDataModule
 from .data.tasks import Task, parse_task
 from .errors import Interrupted, RunDirError
@@ -321,7 +322,7 @@ class ContinualLoop:
     def run(self) -> dict:
         """Train the tasks not finished yet, holding the run directory's lock throughout."""
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        with RunDirLock(self.run_dir):
+        with RunDirLock(self.run_dir), lightning_notices_once():
             return self._run()
 
     def _run(self) -> dict:
@@ -385,6 +386,7 @@ class ContinualLoop:
         if resume is not None:
             print(f"[hispo-pl] resuming task {k + 1} from {partial.name}")
         datamodule = self.make_datamodule(self.stream[k])
+        say(task_header(k, len(self.stream), self.stream[k], trainer.max_steps))
         fit_interruptibly(trainer, self.module, datamodule, ckpt_path=resume, weights_only=True)
         row = self._row_from(trainer, k)
         self._loggers = list(trainer.loggers)
@@ -399,6 +401,8 @@ class ContinualLoop:
         progress["wall_time_s"].append(elapsed)
         self._save_progress(progress)
         partial.unlink(missing_ok=True)
+        say(task_summary(k, len(self.stream), elapsed, row, self._decisions()))
+        quiet_lightning_notices()  # shown with the first task; the next ones repeat them
 
     def _row_from(self, trainer: L.Trainer, k: int) -> list[float]:
         from .callbacks import RolloutEvaluation

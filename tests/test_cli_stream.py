@@ -29,6 +29,11 @@ def test_stream_fit_prints_metrics_logs_and_resumes(tiny_umaze, tmp_path, capsys
     out = capsys.readouterr().out
     assert "stream pointmaze-umaze-N[3] -> pointmaze-umaze-PO[3]" in out
     assert "PER" in out and "BWT" in out and "anchors per subspace" in out
+    # per task: a header, progress as lines (the output is not a terminal), a summary
+    assert "task 1/2: pointmaze-umaze-N[3], 5 steps" in out
+    assert "task 2/2 step 5/5 (100 %), loss " in out
+    assert "task 2/2 done in " in out and "(earlier tasks: mean " in out
+    assert out.count("Trainable params") <= 1  # the model summary once per stream
 
     run_dir = tmp_path / "pointmaze-1" / "seed0"  # the stream's version defaults to seed<seed>
     results = json.loads((run_dir / "results.json").read_text())

@@ -66,3 +66,35 @@ def test_figures():
     np.testing.assert_allclose(to_triangle(np.eye(3)), [[0, 0], [1, 0], [0.5, np.sqrt(3) / 2]])
     with pytest.raises(ValueError, match="3 anchors"):
         simplex_figure([[0.5, 0.5]], "low")
+
+
+def test_console_lines():
+    from hispo_pl.console import duration, task_summary
+
+    assert [duration(s) for s in (52, 247, 3725)] == ["52s", "4m07s", "1h02m"]
+    decisions = [
+        {
+            "task": 1,
+            "subspace": "high",
+            "decision": "keep",
+            "l_prev": 0.9,
+            "l_curr": 0.05,
+            "eps": 0.1,
+        },
+        {
+            "task": 1,
+            "subspace": "low",
+            "decision": "prune",
+            "l_prev": 0.21,
+            "l_curr": 0.2,
+            "eps": 0.1,
+        },
+        {"task": 0, "subspace": "low", "decision": "first", "l_curr": 0.2, "eps": 0.1},
+    ]
+    assert task_summary(1, 4, 247, [1.0, 0.82, 0.1, 0.0], decisions) == (
+        "task 2/4 done in 4m07s: success 82 % (earlier tasks: mean 100 %); "
+        "high keep (18.00 vs 1.10), low prune (1.05 vs 1.10)"
+    )
+    assert task_summary(0, 4, 52, [0.97, 0.1, 0.0, 0.0], decisions) == (
+        "task 1/4 done in 52s: success 97 %"
+    )

@@ -1,0 +1,105 @@
+"""What a stream prints: a header and a summary line per task, training progress as lines when
+the output is not a terminal, and Lightning's own notices once per stream rather than per task."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import sys
+import time
+
+import lightning as L
+
+# Lightning's start-of-fit notices (accelerator lines, tips) go through these loggers
+LIGHTNING_NOTICES = (
+    "lightning.pytorch.utilities.rank_zero",
+    "lightning.fabric.utilities.rank_zero",
+)
+
+
+def say(message: str) -> None:
+    print(f"[hispo-pl] {message}", flush=True)
+
+
+@contextlib.contextmanager
+def lightning_notices_once():
+    """Within: :func:`quiet_lightning_notices` holds until the block ends (the levels are then
+    restored, so a later stream in the same process shows them again)."""
+    levels = {name: logging.getLogger(name).level for name in LIGHTNING_NOTICES}
+    try:
+        yield
+    finally:
+        for name, level in levels.items():
+            logging.getLogger(name).setLevel(level)
+
+
+def quiet_lightning_notices() -> None:
+    """After the first task: Lightning's notices have been shown once; keep its warnings."""
+    for name in LIGHTNING_NOTICES:
+        logging.getLogger(name).setLevel(logging.WARNING)
+
+
+def duration(seconds: float) -> str:
+    """``4m07s``, ``52s``, ``1h02m``."""
+    s = round(seconds)
+    if s < 60:
+        return f"{s}s"
+    if s < 3600:
+        return f"{s // 60}m{s % 60:02d}s"
+    return f"{s // 3600}h{s % 3600 // 60:02d}m"
+
+
+def decision_parts(decisions: list[dict]) -> list[str]:
+    """``low prune (1.05 vs 1.10)`` for each kept or pruned subspace: the ratio the rule
+    compared, ``L_prev / L_curr``, against ``1 + eps``."""
+    parts = []
+    for d in decisions:
+        if d.get("decision") not in ("keep", "prune") or not d.get("l_curr"):
+            continue
+        ratio = d["l_prev"] / d["l_curr"]
+        parts.append(f"{d['subspace']} {d['decision']} ({ratio:.2f} vs {1 + d['eps']:.2f})")
+    return parts
+
+
+def task_header(k: int, n: int, task: str, steps: int) -> str:
+    return f"task {k + 1}/{n}: {task}, {steps} steps"
+
+
+def task_summary(k: int, n: int, seconds: float, row: list[float], decisions: list[dict]) -> str:
+    """After task ``k``: time, success on it and on the tasks before, each subspace's decision."""
+    line = f"task {k + 1}/{n} done in {duration(seconds)}: success {100 * row[k]:.0f} %"
+    if k:
+        line += f" (earlier tasks: mean {100 * sum(row[:k]) / k:.0f} %)"
+    parts = decision_parts([d for d in decisions if d.get("task") == k])
+    return line + ("; " + ", ".join(parts) if parts else "")
+
+
+class StepLines(L.Callback):
+    """Training progress as a line every ``every`` steps (for logs and pipes, where a progress
+    bar would be one long line of carriage returns): step, share done, loss, steps/s."""
+
+    def __init__(self, label: str, every: int):
+        self.label, self.every = label, max(1, every)
+        self._start = 0.0
+        self._first = 0
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._start, self._first = time.perf_counter(), trainer.global_step
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        step = trainer.global_step
+        if step % self.every and step != trainer.max_steps:
+            return
+        rate = (step - self._first) / max(time.perf_counter() - self._start, 1e-9)
+        loss = outputs["loss"] if isinstance(outputs, dict) else outputs
+        loss_text = f", loss {float(loss):.4f}" if loss is not None else ""
+        share = 100 * step / trainer.max_steps if trainer.max_steps > 0 else 0.0
+        say(
+            f"{self.label} step {step}/{trainer.max_steps} ({share:.0f} %){loss_text}, "
+            f"{rate:.1f} steps/s"
+        )
+
+
+def interactive() -> bool:
+    """Whether a progress bar can redraw itself in place (stdout is a terminal)."""
+    return sys.stdout.isatty()
