@@ -214,3 +214,14 @@ def test_packaged_configs_are_found_outside_a_checkout(tmp_path, monkeypatch):
     root = config_root()
     assert (root / "methods" / "hispo.yaml").is_file()
     assert "streams/pointmaze-1" in config_names(root)
+
+
+def test_stream_help_names_every_stream(capsys):
+    from hispo_pl.data.tasks import STREAMS
+
+    with pytest.raises(SystemExit):
+        main(["fit", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    help_text = out[out.index("--data.stream STREAM, ") :]
+    for name in STREAMS:
+        assert name in help_text[:800], name

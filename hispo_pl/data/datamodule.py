@@ -52,10 +52,11 @@ class TaskDataModule(L.LightningDataModule):
             (the point where the expert reached the goal it was heading for).
         steps_per_epoch: batches per epoch (Trainer's ``max_steps`` bounds the total).
         seed: sampler seed.
-        stream: a stream name (``pointmaze-1``) or list of task specs: ``hispo-pl fit`` then
-            trains the whole stream with the ContinualLoop (each task in turn; the module is
-            built for the first one's sizes), and the evaluation at each task's end covers
-            every task of the stream.
+        stream: a stream name (pointmaze-1, pointmaze-2, antmaze-1, antmaze-2, videogame-1,
+            videogame-2, amazeville-1, amazeville-2, simpletown-1, simpletown-2) or a list of
+            task specs: ``hispo-pl fit`` then trains the whole stream with the ContinualLoop
+            (each task in turn; the module is built for the first one's sizes), and the
+            evaluation at each task's end covers every task of the stream.
         replay: also train on every earlier task of the stream, each batch split in equal
             shares over the tasks seen so far (the RPL baseline: an upper bound that keeps old
             data, which the continual setting forbids). Task-end callbacks still draw their
