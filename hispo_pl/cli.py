@@ -60,6 +60,9 @@ class HispoCLI(LightningCLI):
             help="streams: save the task in progress every N steps (task_XX.partial.ckpt); a "
             "rerun resumes it from there (0: only finished tasks are kept)",
         )
+        for flag, (text, _) in METHOD_KNOBS.items():
+            kind = float if flag.startswith("eps") else int
+            parser.add_argument(f"--{flag}", type=kind | None, default=None, help=text)
         linked = ("obs_dim", "action_dim", "goal_dim", "binary_actions", "low_obs", "low_velocity")
         for dim in linked:
             parser.link_arguments(f"data.{dim}", f"model.init_args.{dim}", apply_on="instantiate")
@@ -81,6 +84,7 @@ class HispoCLI(LightningCLI):
 
     def before_instantiate_classes(self) -> None:
         config = self.config.get(self.subcommand, self.config)
+        apply_method_knobs(config)
         validate_config(config.as_dict())
         set_num_threads(config.get("num_threads", 0))
         logger = config.get("trainer", {}).get("logger")
@@ -118,6 +122,66 @@ class HispoCLI(LightningCLI):
                 if self.trainer.log_dir:
                     write_task_result(self.trainer.log_dir, self.model, task, cb, self.fit_seconds)
                     print(f"[hispo-pl] TensorBoard logs: {self.trainer.log_dir}")
+
+
+# flag -> (help, {callback class name: its parameter}): the knobs of the method configs'
+# callbacks, settable without copying a config (a dotted --trainer.callbacks.init_args.X only
+# reaches the last callback of the list)
+METHOD_KNOBS: dict[str, tuple[str, dict[str, str]]] = {
+    "eps_high": (
+        "tolerance ε of the high subspace's pruning rule (SubspacePruning)",
+        {"SubspacePruning": "eps_high"},
+    ),
+    "eps_low": (
+        "tolerance ε of the low subspace's pruning rule (SubspacePruning)",
+        {"SubspacePruning": "eps_low"},
+    ),
+    "eps": ("tolerance ε of CSP's critic rule (CriticPruning)", {"CriticPruning": "eps"}),
+    "search_candidates": (
+        "Dirichlet candidates per subspace search (DirichletEvaluation, CriticEvaluation)",
+        {"DirichletEvaluation": "n_candidates", "CriticEvaluation": "n_candidates"},
+    ),
+    "search_batches": (
+        "held-out batches each candidate is scored on (DirichletEvaluation, CriticEvaluation)",
+        {"DirichletEvaluation": "n_batches", "CriticEvaluation": "n_batches"},
+    ),
+    "eval_episodes": (
+        "rollout episodes per task evaluation (RolloutEvaluation)",
+        {"RolloutEvaluation": "episodes"},
+    ),
+    "eval_every": (
+        "also evaluate the current task every N steps, 0: only at its end (RolloutEvaluation)",
+        {"RolloutEvaluation": "eval_every"},
+    ),
+}
+
+
+def apply_method_knobs(config) -> None:
+    """Write each knob flag given (``--eps_low 0.2``) into the init_args of the callbacks that
+    take it, then clear the flag, so the saved config and the run's fingerprint hold the
+    effective values whichever way they were set.
+
+    Raises:
+        ConfigError: a knob that no callback of the configured method takes.
+    """
+    callbacks = (config.get("trainer") or {}).get("callbacks") or []
+    for flag, (_, targets) in METHOD_KNOBS.items():
+        value = config.get(flag)
+        if value is None:
+            continue
+        hit = False
+        for callback in callbacks:
+            name = str(callback.get("class_path", "")).rsplit(".", 1)[-1]
+            if name in targets:
+                callback["init_args"][targets[name]] = value
+                hit = True
+        if not hit:
+            names = [str(c.get("class_path", "")).rsplit(".", 1)[-1] for c in callbacks]
+            raise ConfigError(
+                f"--{flag}: no callback of this method takes it (its callbacks: "
+                f"{', '.join(names) or 'none'}); it applies to {', '.join(targets)}"
+            )
+        config[flag] = None
 
 
 def _config_problems(node, path: str = "") -> list[str]:

@@ -225,3 +225,49 @@ def test_stream_help_names_every_stream(capsys):
     help_text = out[out.index("--data.stream STREAM, ") :]
     for name in STREAMS:
         assert name in help_text[:800], name
+
+
+def _instantiated(args: list[str]):
+    from hispo_pl.cli import HispoCLI
+    from hispo_pl.data.datamodule import TaskDataModule
+    from hispo_pl.modules.hbc import GoalConditionedBC
+
+    return HispoCLI(
+        model_class=GoalConditionedBC,
+        datamodule_class=TaskDataModule,
+        subclass_mode_model=True,
+        args=args,
+        trainer_defaults={"accelerator": "cpu", "devices": 1},
+        run=False,
+    )
+
+
+def test_method_knobs_reach_their_callbacks(tmp_path):
+    from hispo_pl.callbacks import DirichletEvaluation, RolloutEvaluation, SubspacePruning
+
+    args = [
+        "--config", str(ROOT / "configs/streams/pointmaze-1.yaml"),
+        "--config", str(ROOT / "configs/methods/hispo.yaml"),
+        "--trainer.logger.init_args.save_dir", str(tmp_path),
+        "--eps_low", "0.25", "--search_candidates", "64", "--eval_episodes", "7",
+    ]  # fmt: skip
+    cli = _instantiated(args)
+    by_type = {type(cb): cb for cb in cli.trainer.callbacks}
+    assert by_type[SubspacePruning].eps == {"high": 0.1, "low": 0.25}
+    assert by_type[DirichletEvaluation].n_candidates == 64
+    assert by_type[RolloutEvaluation].episodes == 7
+    # the saved configuration holds the effective values, not the flags
+    assert cli.config["eps_low"] is None
+    assert cli.config["trainer"]["callbacks"][2]["init_args"]["eps_low"] == 0.25
+
+
+def test_a_knob_the_method_lacks_is_refused(capsys):
+    args = [
+        "fit",
+        "--config", str(ROOT / "configs/streams/pointmaze-1.yaml"),
+        "--config", str(ROOT / "configs/methods/scn.yaml"),
+        "--eps_low", "0.2",
+    ]  # fmt: skip
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "--eps_low: no callback of this method takes it" in err and "SubspacePruning" in err
