@@ -304,6 +304,17 @@ def write_task_result(log_dir: str, model, task, callback, seconds: float) -> No
     atomic_write_text(Path(log_dir) / "result.json", json.dumps(result, indent=2) + "\n")
 
 
+def stream_run_dir(logger, root: str, stream, seed) -> Path:
+    """Where a stream's files go: the logger's own directory when it has one (TensorBoard,
+    CSV: ``runs/<name>/seed<S>``), else ``<root>/runs/<stream>/seed<S>`` (MLflow, W&B...)."""
+    log_dir = getattr(logger, "log_dir", None) if logger is not None else None
+    if log_dir:
+        return Path(log_dir)
+    name = stream if isinstance(stream, str) else "stream"
+    number = seed if isinstance(seed, int) and not isinstance(seed, bool) else 0
+    return Path(root) / "runs" / name / f"seed{number}"
+
+
 def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
     """Build the ContinualLoop from the parsed config: per-task datamodules share the data
     settings, per-task Trainers share the callbacks and the stream's logger."""
@@ -318,8 +329,10 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
     # the method's callbacks, shared by every task's Trainer; each Trainer adds its own defaults
     defaults = (SaveConfigCallback, ModelCheckpoint, ModelSummary, ProgressBar)
     callbacks = [cb for cb in cli.trainer.callbacks if not isinstance(cb, defaults)]
-    logger = cli.trainer.logger
-    run_dir = logger.log_dir if logger is not None else cli.trainer.default_root_dir
+    seed = config.get("seed_everything")  # the int LightningCLI seeded with, or False
+    run_dir = stream_run_dir(
+        cli.trainer.logger, cli.trainer.default_root_dir, config["data"]["stream"], seed
+    )
 
     def make_datamodule(task: str) -> TaskDataModule:
         return TaskDataModule(**{**data_args, "task": task, "stream": datamodule.stream})
@@ -351,7 +364,6 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
     if config.get("scratch_results"):
         R = json.loads(Path(config["scratch_results"]).read_text())["R"]
         scratch = [R[k][k] for k in range(len(R))]
-    seed = config.get("seed_everything")  # the int LightningCLI seeded with, or False
     import yaml
 
     plain = _plain({k: v for k, v in config.as_dict().items() if k != "config"})

@@ -64,3 +64,28 @@ def fit_tiny_stream(
     assert main(tiny_stream_args(method_config, save_dir, stream, *extra)) == 0
     run_dir = save_dir / "pointmaze-1" / "seed0"  # a stream's version defaults to seed<seed>
     return json.loads((run_dir / "results.json").read_text()), run_dir
+
+
+class DirlessLogger(L.pytorch.loggers.Logger):
+    """A logger without a run directory (``log_dir``), as MLflow's or W&B's: it keeps what it
+    receives in ``DirlessLogger.received`` (class-level, since the CLI builds the instance)."""
+
+    received: list[tuple[dict, int | None]] = []
+
+    @property
+    def name(self) -> str:
+        return "dirless"
+
+    @property
+    def version(self) -> str:
+        return "0"
+
+    @property
+    def save_dir(self) -> str:  # where such a logger keeps its own files (./mlruns for MLflow)
+        return "dirless-logs"
+
+    def log_metrics(self, metrics: dict, step: int | None = None) -> None:
+        DirlessLogger.received.append((dict(metrics), step))
+
+    def log_hyperparams(self, params, *args, **kwargs) -> None:
+        pass

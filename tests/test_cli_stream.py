@@ -155,3 +155,24 @@ def test_a_stream_logs_its_report_through_any_logger(tiny_umaze, tmp_path, capsy
     assert {"stream/PER", "stream/MEM", "stream/success/T02", "alpha/low/T02/anchor_1"} <= set(
         header
     )
+
+
+def test_a_logger_without_a_directory_gets_the_default_run_directory(
+    tiny_umaze, tmp_path, monkeypatch, capsys
+):
+    from helpers import DirlessLogger
+
+    monkeypatch.chdir(tmp_path)
+    DirlessLogger.received.clear()
+    args = tiny_stream_args(
+        "hispo",
+        tmp_path,
+        STREAM,
+        "--trainer.logger",
+        json.dumps({"class_path": "helpers.DirlessLogger"}),
+    )
+    assert main(args) == 0
+    run_dir = tmp_path / "runs" / "stream" / "seed0"  # a stream given as a list has no name
+    assert (run_dir / "results.json").exists() and (run_dir / "task_02.ckpt").exists()
+    stream_scalars = {k for metrics, _ in DirlessLogger.received for k in metrics}
+    assert {"stream/PER", "stream/MEM", "stream/success/T01"} <= stream_scalars
