@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _low(inputs: str, log_std: str) -> list[str]:
-    return ["--data.low_inputs", inputs, "--model.init_args.low_log_std", log_std]
+    return ["--data.low_inputs", inputs, "--model.init_args.backbone.low_log_std", log_std]
 
 
 SETTINGS: dict[str, list[str]] = {  # what the low policy sees, and its log-std

@@ -60,9 +60,11 @@ class HispoCLI(LightningCLI):
             help="streams: save the task in progress every N steps (task_XX.partial.ckpt); a "
             "rerun resumes it from there (0: only finished tasks are kept)",
         )
-        linked = ("obs_dim", "action_dim", "goal_dim", "binary_actions", "low_obs", "low_velocity")
-        for dim in linked:
+        for dim in ("obs_dim", "action_dim", "goal_dim"):
             parser.link_arguments(f"data.{dim}", f"model.init_args.{dim}", apply_on="instantiate")
+        for name in ("binary_actions", "low_obs", "low_velocity"):  # what the data defines
+            target = f"model.init_args.backbone.{name}"
+            parser.link_arguments(f"data.{name}", target, apply_on="instantiate")
 
     def _parse_ckpt_path(self) -> None:
         """Check ``--ckpt_path`` before Lightning reads its hyperparameters: a stream refuses
@@ -207,7 +209,7 @@ def _plain(config: dict) -> dict:
 
 
 def run_fingerprint(config: dict) -> dict:
-    """Every setting that defines a stream run, flat (``model.init_args.lr: 0.001``,
+    """Every setting that defines a stream run, flat (``model.init_args.optim.lr: 0.001``,
     ``trainer.callbacks[1].init_args.eps_high: 0.1``), without :data:`NOT_IN_FINGERPRINT`."""
     flat: dict = {}
 
@@ -483,8 +485,8 @@ def load_checkpoint_policy(
         )
     for task in tasks:
         for dim in ("obs_dim", "action_dim"):
-            built, needed = module.hparams.get(dim), getattr(task.env_family, dim)
-            if built is not None and built != needed:
+            built, needed = getattr(module, dim), getattr(task.env_family, dim)
+            if built != needed:
                 parser.error(
                     f"{ckpt} was trained with {dim} {built}, but {task} has {dim} {needed}"
                 )

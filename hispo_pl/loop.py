@@ -22,6 +22,7 @@ import lightning as L
 import numpy as np
 import torch
 
+from .config import upgrade_fingerprint
 from .data.datamodule import TaskDataModule
 from .data.tasks import Task, parse_task
 from .errors import Interrupted, RunDirError
@@ -276,6 +277,7 @@ class ContinualLoop:
                 "choose another run directory (e.g. --trainer.logger.init_args.version)"
             )
         stored = progress.get("fingerprint")
+        stored = upgrade_fingerprint(stored) if stored is not None else None
         differing = differing_keys(stored or {}, self.fingerprint or {})
         if self.fingerprint is not None and stored is not None and differing:
             diff = "\n  ".join(differing)

@@ -21,13 +21,14 @@ from hispo_pl.callbacks import (
     SubspacePruning,
 )
 from hispo_pl.callbacks.subspace import SearchResult
+from hispo_pl.config import BackboneConfig
 from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.loop import load_module_state
 from hispo_pl.modules.hbc import HBC
 from hispo_pl.modules.hispo import SUBSPACES, HiSPO
 
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-IA[3]", "pointmaze-umaze-PO[3]"]
-SIZES = {"obs_dim": 4, "action_dim": 2, "high_hidden": 8, "low_hidden": 16}
+SIZES = {"obs_dim": 4, "action_dim": 2, "backbone": BackboneConfig(high_hidden=8, low_hidden=16)}
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -278,7 +279,7 @@ def test_rollout_before_pruning_is_rejected(tiny_umaze, tmp_path):
 @pytest.mark.parametrize("callback", [AnchorExtension, DirichletEvaluation, SubspacePruning])
 def test_subspace_callbacks_reject_a_plain_hbc(tiny_umaze, tmp_path, callback):
     cbs = [callback()] if callback is not SubspacePruning else [DirichletEvaluation(), callback()]
-    hbc = HBC(obs_dim=4, action_dim=2, high_hidden=8, low_hidden=16)
+    hbc = HBC(**SIZES)
     _fit_expecting(hbc, cbs, tmp_path, TypeError, "SubspacePolicy")
 
 

@@ -18,13 +18,14 @@ from hispo_pl.callbacks import (
     RolloutEvaluation,
     SubspacePruning,
 )
+from hispo_pl.config import BackboneConfig
 from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.loop import PROGRESS_FILE, RESULTS_FILE, ContinualLoop, checkpoint_path
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.hispo import SUBSPACES, HiSPO
 
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-IA[3]", "pointmaze-umaze-PO[3]"]
-SIZES = {"obs_dim": 4, "action_dim": 2, "high_hidden": 8, "low_hidden": 16}
+SIZES = {"obs_dim": 4, "action_dim": 2, "backbone": BackboneConfig(high_hidden=8, low_hidden=16)}
 SEED = 0
 COMPARED = ("stream", "R", "PER", "BWT", "stored_bytes", "anchors", "alphas", "table")
 
