@@ -4,14 +4,11 @@ anchors. Each hook is thin; the rules live in :mod:`hispo_pl.decisions`."""
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import Literal
 
 import lightning as L
-import numpy as np
 import torch
 from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_warn
@@ -29,6 +26,7 @@ from ..decisions import (
 from ..modules.hispo import SubspacePolicy
 from ..nn import eval_mode
 from ..nn.subspace import sample_dirichlet
+from ..rundir import RunDir, task_label
 from ..search import RaceOutcome, race_subspace, resolve_precision
 
 
@@ -270,16 +268,15 @@ class DirichletEvaluation(L.Callback):
         return results
 
     def _save(self, trainer, module, name, cands, race: RaceOutcome, result: SearchResult) -> None:
-        out = Path(trainer.default_root_dir) / "search"
-        out.mkdir(parents=True, exist_ok=True)
         probe = {}
         if race.probe_losses is not None:
             probe = {
                 "probe_alphas": cands.cpu().numpy(),
                 "probe_losses": race.probe_losses.cpu().numpy(),
             }
-        np.savez(
-            out / f"task_{module.task_index + 1:02d}_{name}.npz",
+        RunDir(trainer.default_root_dir).write_search(
+            module.task_index,
+            name,
             alphas=cands[race.survivors].cpu().numpy(),
             losses=race.losses.cpu().numpy(),
             l_curr=result.l_curr,
@@ -377,15 +374,11 @@ class SubspacePruning(L.Callback):
 
 def log_decisions(trainer: L.Trainer, module, decisions: list[dict]) -> None:
     """Append decisions to ``decisions.jsonl`` in the run dir and log them to TensorBoard."""
-    root = Path(trainer.default_root_dir)
-    root.mkdir(parents=True, exist_ok=True)
-    with open(root / "decisions.jsonl", "a") as f:
-        for d in decisions:
-            f.write(json.dumps(d) + "\n")
+    RunDir(trainer.default_root_dir).append_decisions(decisions)
     logger = trainer.logger
     if logger is None:
         return
-    task = module.task_index + 1
+    task = task_label(module.task_index)
     metrics = {f"anchors/{d['subspace']}/count": d["anchors"] for d in decisions}
     for d in decisions:
         if d.get("l_prev") is not None:

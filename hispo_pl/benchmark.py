@@ -35,14 +35,8 @@ import numpy as np
 
 from .io import atomic_write_text
 from .metrics import continual_metrics
+from .rundir import RunDir
 
-RESULTS_FILE = "results.json"  # written by hispo_pl.loop.ContinualLoop (same name there)
-PROGRESS_FILE = "progress.json"  # idem: present while a stream is part-way through
-RUN_FILE = "run.json"  # the benchmark's record of a run: method, seed, command, budget
-LOG_FILE = "fit.log"
-DECISIONS_FILE = "decisions.jsonl"  # written by the pruning / zero-shot callbacks
-CONFIG_FILE = "config.yaml"  # written by LightningCLI: the run's whole configuration
-EXPORTED = (RESULTS_FILE, DECISIONS_FILE, CONFIG_FILE, RUN_FILE)  # a reported run's small files
 PLAN_FILE = "benchmark.json"
 RUNS_DIR = "runs"
 FIT_MODULE = ("-m", "hispo_pl.cli")  # run with the worker's own interpreter
@@ -242,11 +236,11 @@ class PlannedRun:
 
     @property
     def results_path(self) -> Path:
-        return self.run_dir / RESULTS_FILE
+        return RunDir(self.run_dir).results_file
 
     @property
     def log_path(self) -> Path:
-        return self.run_dir / LOG_FILE
+        return RunDir(self.run_dir).fit_log
 
     def command(self, python: str = "python") -> list[str]:
         return [python, *self.argv]
@@ -298,8 +292,8 @@ def finished_run_dirs(out: Path) -> list[Path]:
     """Run folders with a ``results.json``: ``OUT/runs/<method>/seed<S>`` (where the benchmark
     runs them) or ``OUT/<method>/seed<S>`` (an exported copy, e.g. under ``docs/results``)."""
     out = Path(out)
-    found = list(out.glob(f"{RUNS_DIR}/*/seed*/{RESULTS_FILE}"))
-    found += [p for p in out.glob(f"*/seed*/{RESULTS_FILE}") if p.parts[-3] != RUNS_DIR]
+    found = list(out.glob(f"{RUNS_DIR}/*/seed*/{RunDir.RESULTS}"))
+    found += [p for p in out.glob(f"*/seed*/{RunDir.RESULTS}") if p.parts[-3] != RUNS_DIR]
     return sorted(p.parent for p in found)
 
 
@@ -311,12 +305,8 @@ def load_records(out: Path) -> list[RunRecord]:
             seed = int(seed_dir.name.removeprefix("seed"))
         except ValueError:
             continue
-        meta_path, decisions_path = seed_dir / RUN_FILE, seed_dir / DECISIONS_FILE
-        meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
-        decisions = []
-        if decisions_path.exists():
-            decisions = [json.loads(x) for x in decisions_path.read_text().splitlines() if x]
-        results = json.loads((seed_dir / RESULTS_FILE).read_text())
+        run = RunDir(seed_dir)
+        meta, decisions, results = run.read_run_record(), run.read_decisions(), run.read_results()
         records.append(RunRecord(seed_dir.parent.name, seed, results, meta, decisions))
     return sorted(records, key=lambda r: (r.method, r.seed))
 
@@ -333,7 +323,7 @@ def export_runs(out: Path, dest: Path) -> list[Path]:
     for seed_dir in finished_run_dirs(out):
         target = Path(dest) / seed_dir.parent.name / seed_dir.name
         target.mkdir(parents=True, exist_ok=True)
-        for name in EXPORTED:
+        for name in RunDir.EXPORTED:
             if (seed_dir / name).exists():
                 (target / name).write_bytes((seed_dir / name).read_bytes())
                 written.append(target / name)
@@ -597,12 +587,13 @@ def unfinished_runs(out: Path) -> list[tuple[str, int, str]]:
     """(method, seed, status) of every run the benchmark launched (it has a ``run.json``)
     without a ``results.json``: failed (with its exit status and log), or not finished."""
     found = []
-    for meta_path in sorted((Path(out) / RUNS_DIR).glob(f"*/seed*/{RUN_FILE}")):
+    for meta_path in sorted((Path(out) / RUNS_DIR).glob(f"*/seed*/{RunDir.RUN_RECORD}")):
         seed_dir = meta_path.parent
-        if (seed_dir / RESULTS_FILE).exists():
+        run = RunDir(seed_dir)
+        if run.has_results():
             continue
         try:
-            meta = json.loads(meta_path.read_text())
+            meta = run.read_run_record()
             seed = int(seed_dir.name.removeprefix("seed"))
         except ValueError:
             continue
@@ -633,7 +624,7 @@ def write_report(out: Path, stream: str | None = None) -> list[Path]:
     missing = unfinished_runs(out)
     if not records and not missing:
         raise FileNotFoundError(
-            f"no finished runs ({RUNS_DIR}/<method>/seed<S>/{RESULTS_FILE}) under {out}"
+            f"no finished runs ({RUNS_DIR}/<method>/seed<S>/{RunDir.RESULTS}) under {out}"
         )
     if stream is None:
         plan = out / PLAN_FILE
@@ -676,7 +667,8 @@ def embed_reports(doc: Path, root: Path = Path(".")) -> str:
             continue
         target = Path(root) / line[len(EMBED_BEGIN) :].removesuffix("-->").strip()
         with tempfile.TemporaryDirectory() as tmp:
-            for name in EXPORTED:  # a copy, so the committed report files are left as they are
+            # a copy, so the committed report files are left as they are
+            for name in RunDir.EXPORTED:
                 for src in target.parent.glob(f"*/seed*/{name}"):
                     dst = Path(tmp) / src.relative_to(target.parent)
                     dst.parent.mkdir(parents=True, exist_ok=True)
@@ -768,7 +760,7 @@ class Reporter:
         else:
             self.failed.append(run)
             why = f"exit {outcome['returncode']}" + (
-                f", no {RESULTS_FILE}" if outcome["returncode"] == 0 else ""
+                f", no {RunDir.RESULTS}" if outcome["returncode"] == 0 else ""
             )
             record_status(run, f"failed ({why}); log: {run.log_path}")
             tail = "\n".join("    " + line for line in outcome["log_tail"].splitlines())
@@ -784,11 +776,11 @@ class Reporter:
 
 def record_status(run: PlannedRun, status: str) -> None:
     """Note a run's outcome in its ``run.json`` (the tables list failed runs with it)."""
-    meta_path = run.run_dir / RUN_FILE
+    run_dir = RunDir(run.run_dir)
     try:
-        meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
+        meta = run_dir.read_run_record()
         meta["status"] = status
-        atomic_write_text(meta_path, json.dumps(meta, indent=1))
+        run_dir.write_run_record(meta)
     except (OSError, ValueError):  # the record is a convenience; the log says the rest
         pass
 
@@ -872,7 +864,7 @@ def run_ray(
                 outcome = {"returncode": -1, "results": None, "log_tail": f"{e}"}
             if outcome["results"] is not None and not run.results_path.exists():
                 run.run_dir.mkdir(parents=True, exist_ok=True)
-                atomic_write_text(run.results_path, json.dumps(outcome["results"], indent=1))
+                RunDir(run.run_dir).write_results(outcome["results"])
             report(run, outcome)
     except KeyboardInterrupt:
         for ref in pending:
@@ -1012,14 +1004,14 @@ def pending_runs(runs: Sequence[PlannedRun], stream: str) -> list[PlannedRun]:
     run, noting when its command changed since the first launch."""
     todo = []
     for run in runs:
-        meta_path = run.run_dir / RUN_FILE
-        old = json.loads(meta_path.read_text()) if meta_path.exists() else None
+        run_dir = RunDir(run.run_dir)
+        old = run_dir.read_run_record() if run_dir.run_record_file.exists() else None
         changed = old is not None and old.get("argv") != list(run.argv)
-        if run.results_path.exists():
+        if run_dir.has_results():
             note = " (it was launched with another command)" if changed else ""
-            print(f"[benchmark] {run.name}: skipped, {RESULTS_FILE} exists{note}")
+            print(f"[benchmark] {run.name}: skipped, {RunDir.RESULTS} exists{note}")
             continue
-        if (run.run_dir / PROGRESS_FILE).exists():
+        if run_dir.progress_file.exists():
             note = "; note: the command differs from its first launch" if changed else ""
             print(f"[benchmark] {run.name}: resuming an interrupted run{note}")
         run.run_dir.mkdir(parents=True, exist_ok=True)
@@ -1031,7 +1023,7 @@ def pending_runs(runs: Sequence[PlannedRun], stream: str) -> list[PlannedRun]:
             "argv": list(run.argv),
             "command": shlex.join(run.command(sys.executable)),
         }
-        atomic_write_text(meta_path, json.dumps(meta, indent=1))
+        run_dir.write_run_record(meta)
         todo.append(run)
     return todo
 

@@ -26,8 +26,8 @@ from lightning.pytorch.cli import LightningCLI
 
 from .data.datamodule import TaskDataModule
 from .errors import ConfigError, Interrupted, UserError
-from .io import atomic_write_text
 from .modules.hbc import GoalConditionedBC
+from .rundir import RunDir, task_label
 
 
 def set_num_threads(n: int) -> None:
@@ -239,7 +239,7 @@ def write_task_result(log_dir: str, model, task, callback, seconds: float) -> No
         "seconds": round(seconds, 1),
         **{k: float(v) for k, v in callback.last.items()},
     }
-    atomic_write_text(Path(log_dir) / "result.json", json.dumps(result, indent=2) + "\n")
+    RunDir(log_dir).write_result(result)
 
 
 def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
@@ -305,7 +305,7 @@ def decision_lines(decisions: list[dict]) -> list[str]:
         by_task.setdefault(d["task"], []).append(
             f"{d['subspace']} {d['decision']} ({ratio:.2f} vs {1 + d['eps']:.2f})"
         )
-    return [f"task {t + 1}: " + ", ".join(parts) for t, parts in sorted(by_task.items())]
+    return [f"task {task_label(t)}: " + ", ".join(parts) for t, parts in sorted(by_task.items())]
 
 
 def print_stream_results(results: dict) -> None:
@@ -317,13 +317,11 @@ def print_stream_results(results: dict) -> None:
     print("[hispo-pl] " + "  ".join(parts))
     if results.get("anchors"):
         print(f"[hispo-pl] anchors per subspace: {results['anchors']}")
-    decisions = Path(results["run_dir"]) / "decisions.jsonl"
-    if decisions.exists():
-        records = [json.loads(x) for x in decisions.read_text().splitlines() if x]
-        for line in decision_lines(records):
-            print(f"[hispo-pl] {line}  (L_prev / L_curr vs 1 + eps)")
+    run_dir = RunDir(results["run_dir"])
+    for line in decision_lines(run_dir.read_decisions()):
+        print(f"[hispo-pl] {line}  (L_prev / L_curr vs 1 + eps)")
     print(f"[hispo-pl] wall time per task (s): {[round(t) for t in results['wall_time_s']]}")
-    print(f"[hispo-pl] results: {results['run_dir']}/results.json")
+    print(f"[hispo-pl] results: {run_dir.results_file}")
 
 
 def check_fit_args(argv: list[str]) -> str | None:
