@@ -156,13 +156,11 @@ class DirichletEvaluation(L.Callback):
         self.every_n_steps = every_n_steps
         self.refine_current = refine_current
         self.convergence_window = convergence_window
-        self.results: dict[str, SearchResult] = {}
         self._l_window: dict[str, float] = {}  # L_curr per subspace when the window opened
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         _require_subspace_policy(pl_module, type(self).__name__)
-        self.results = {}
         self._l_window = {}
 
     @override
@@ -195,11 +193,13 @@ class DirichletEvaluation(L.Callback):
 
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        self.results = self._run_search(trainer, pl_module, train_losses=True)
-        for name, res in self.results.items():
+        results = self._run_search(trainer, pl_module, train_losses=True)
+        for name, res in results.items():
             if name in self._l_window and res.l_curr > 0:
                 res.l_window = self._l_window[name]
                 res.improvement = res.l_window / res.l_curr - 1.0
+        pl_module.task_record.searches = results
+        pl_module.task_record.convergence_window = self.convergence_window
 
     @torch.no_grad()
     def _run_search(
@@ -287,8 +287,7 @@ class DirichletEvaluation(L.Callback):
 
 def check_task_end_order(callbacks: list[L.Callback], pruning: L.Callback, search_type: type):
     """Task-end hooks run in list order: the search (an instance of ``search_type``), then
-    ``pruning``, then the rollout evaluation that must see the pruned policy. Returns the
-    search callback."""
+    ``pruning``, then the rollout evaluation that must see the pruned policy."""
     from .rollout import RolloutEvaluation
 
     pos = {id(cb): i for i, cb in enumerate(callbacks)}
@@ -300,7 +299,6 @@ def check_task_end_order(callbacks: list[L.Callback], pruning: L.Callback, searc
         isinstance(cb, RolloutEvaluation) and pos[id(cb)] < pos[id(pruning)] for cb in callbacks
     ):
         raise ValueError(f"list RolloutEvaluation after {prune}: it must see the pruned policy")
-    return search[0]
 
 
 class SubspacePruning(L.Callback):
@@ -327,18 +325,16 @@ class SubspacePruning(L.Callback):
         bad = {name: e for name, e in self.eps.items() if not e >= 0}
         if bad:  # checked here, not after a task has trained
             raise ValueError(f"SubspacePruning tolerances must be >= 0, got {bad}")
-        self._search: DirichletEvaluation | None = None
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         _require_subspace_policy(pl_module, type(self).__name__)
-        self._search = check_task_end_order(trainer.callbacks, self, DirichletEvaluation)
+        check_task_end_order(trainer.callbacks, self, DirichletEvaluation)
 
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        decisions = [
-            self._decide(pl_module, name, res) for name, res in self._search.results.items()
-        ]
+        searches = pl_module.task_record.searches  # DirichletEvaluation's, just before
+        decisions = [self._decide(pl_module, name, res) for name, res in searches.items()]
         pl_module.freeze_all()
         log_decisions(trainer, pl_module, decisions)
 
@@ -358,7 +354,8 @@ class SubspacePruning(L.Callback):
         if res.l_prev is not None and decided_by_budget(res.improvement, eps):
             rank_zero_warn(
                 f"task {task + 1}, {name} subspace ({action}): L_curr still fell by "
-                f"{res.improvement:.1%} over the last {self._search.convergence_window:.0%} of "
+                f"{res.improvement:.1%} over the last "
+                f"{module.task_record.convergence_window:.0%} of "
                 f"the steps, more than eps = {eps}; the step budget, not the task, decided "
                 "this. Train longer (--trainer.max_steps) for a decision about the task."
             )

@@ -103,23 +103,22 @@ class HispoCLI(LightningCLI):
         self.stream_results = run_stream_from_cli(self, model, datamodule)
 
     def after_fit(self) -> None:
-        from .callbacks import RolloutEvaluation
-
         if self.datamodule.stream is not None:
             print_stream_results(self.stream_results)
             return
-        for cb in self.trainer.callbacks:
-            if isinstance(cb, RolloutEvaluation) and cb.last is not None:
-                task = self.datamodule.task
-                print(
-                    f"[hispo-pl] {type(self.model).__name__} on {task}: success "
-                    f"{100 * cb.last['success']:.1f}% over {cb.episodes} episodes, mean episode "
-                    f"length {cb.last['episode_length']:.1f}{_flips(cb.last['flip_rate'])}, after "
-                    f"{cb.last['step']} steps ({self.fit_seconds:.0f} s with evaluations)"
-                )
-                if self.trainer.log_dir:
-                    write_task_result(self.trainer.log_dir, self.model, task, cb, self.fit_seconds)
-                    print(f"[hispo-pl] TensorBoard logs: {self.trainer.log_dir}")
+        record = self.model.task_record
+        if record.evaluation is None:  # no RolloutEvaluation callback
+            return
+        last, task = record.evaluation, self.datamodule.task
+        print(
+            f"[hispo-pl] {type(self.model).__name__} on {task}: success "
+            f"{100 * last['success']:.1f}% over {record.episodes} episodes, mean episode "
+            f"length {last['episode_length']:.1f}{_flips(last['flip_rate'])}, after "
+            f"{last['step']} steps ({self.fit_seconds:.0f} s with evaluations)"
+        )
+        if self.trainer.log_dir:
+            write_task_result(self.trainer.log_dir, self.model, task, self.fit_seconds)
+            print(f"[hispo-pl] TensorBoard logs: {self.trainer.log_dir}")
 
 
 def _config_problems(node, path: str = "") -> list[str]:
@@ -229,15 +228,17 @@ def run_fingerprint(config: dict) -> dict:
     return flat
 
 
-def write_task_result(log_dir: str, model, task, callback, seconds: float) -> None:
-    """``result.json`` beside a single-task run's logs: its final evaluation, for tables
-    (``benchmarks/single_task_table.py``) without parsing TensorBoard files."""
+def write_task_result(log_dir: str, model, task, seconds: float) -> None:
+    """``result.json`` beside a single-task run's logs: its final evaluation (the module's
+    task record), for tables (``benchmarks/single_task_table.py``) without parsing
+    TensorBoard files."""
+    record = model.task_record
     result = {
         "method": type(model).__name__,
         "task": str(task),
-        "episodes": callback.episodes,
+        "episodes": record.episodes,
         "seconds": round(seconds, 1),
-        **{k: float(v) for k, v in callback.last.items()},
+        **{k: float(v) for k, v in record.evaluation.items()},
     }
     RunDir(log_dir).write_result(result)
 

@@ -339,25 +339,19 @@ class ContinualLoop:
             print(f"[hispo-pl] resuming task {task_label(k)} from {partial.name}")
         datamodule = self.make_datamodule(self.stream[k])
         fit_interruptibly(trainer, self.module, datamodule, ckpt_path=resume, weights_only=True)
-        row = self._row_from(trainer, k)
+        row = self.module.task_record.success_row  # RolloutEvaluation's, at the task's end
+        if row is None:
+            raise RuntimeError(
+                "the stream needs a RolloutEvaluation callback to measure R after each task"
+            )
         trainer.save_checkpoint(self.run_dir.checkpoint(k))
         if self.config_text is not None:
             self.run_dir.write_task_config(k, self.config_text)
-        progress["rows"].append(row)
+        progress["rows"].append(list(row))
         elapsed = time.perf_counter() - start
         progress["wall_time_s"].append(elapsed)
         self._save_progress(progress)
         partial.unlink(missing_ok=True)
-
-    def _row_from(self, trainer: L.Trainer, k: int) -> list[float]:
-        from .callbacks import RolloutEvaluation
-
-        for cb in trainer.callbacks:
-            if isinstance(cb, RolloutEvaluation) and cb.stream_row is not None:
-                return list(cb.stream_row)
-        raise RuntimeError(
-            "the stream needs a RolloutEvaluation callback to measure R after each task"
-        )
 
     def _results(self, progress: dict) -> dict:
         n = len(self.stream)

@@ -117,13 +117,13 @@ def test_first_task_stores_the_single_anchor(first_task):
 
 
 def test_stream_evaluation_row_covers_the_whole_stream(first_task):
-    rollout = first_task["callbacks"][-1]
+    rollout, record = first_task["callbacks"][-1], first_task["module"].task_record
     assert isinstance(rollout, RolloutEvaluation)
-    row = rollout.stream_row
+    row = record.success_row  # what the loop reads
     assert row is not None and len(row) == len(STREAM)
     assert all(0.0 <= s <= 1.0 for s in row)
     assert all(s * rollout.episodes == round(s * rollout.episodes) for s in row)  # k/episodes
-    assert rollout.last["success"] == row[0]
+    assert record.evaluation["success"] == row[0] and record.episodes == rollout.episodes
     # one evaluator (and its environments) per task of the stream, kept for the next tasks
     assert {t.spec for t in rollout._evaluators} == set(STREAM)
 

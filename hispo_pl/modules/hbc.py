@@ -15,6 +15,7 @@ from ..errors import CheckpointError, TrainingDivergedError
 from ..nn import fast
 from ..nn.hierarchy import HierarchicalPolicy
 from ..nn.mlp import GaussianPolicy
+from ..record import TaskRecord
 
 
 class GoalConditionedBC(L.LightningModule):
@@ -40,6 +41,7 @@ class GoalConditionedBC(L.LightningModule):
         self.optim_config = OptimConfig.of(optim)
         self.task_index = 0  # position in a stream, set by the ContinualLoop
         self.log_prefix = ""  # e.g. "task_03/" inside a stream, so curves of tasks do not collide
+        self.task_record = TaskRecord()  # what this task's callbacks found (not saved)
 
     @property
     def lr(self) -> float:
@@ -53,6 +55,10 @@ class GoalConditionedBC(L.LightningModule):
             for key, config in configs.items():
                 if key in hparams:
                     hparams[key] = plain(config)
+
+    def on_fit_start(self) -> None:
+        """A fresh :class:`~hispo_pl.record.TaskRecord` for the task about to train."""
+        self.task_record = TaskRecord()
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         raise NotImplementedError
