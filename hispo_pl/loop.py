@@ -99,16 +99,6 @@ class TaskCheckpoint(L.Callback):
         self._pending = state_dict
 
 
-def load_module_state(module: L.LightningModule, path: Path) -> None:
-    """Load a task checkpoint into ``module`` in place (structure restored first); plain
-    tensors and values only, so ``weights_only=True`` holds."""
-    from .modules.hbc import read_checkpoint
-
-    checkpoint = read_checkpoint(path)
-    module.on_load_checkpoint(checkpoint)
-    module.load_state_dict(checkpoint["state_dict"])
-
-
 def fit_interruptibly(trainer: L.Trainer, module: L.LightningModule, datamodule, **kwargs) -> None:
     """``trainer.fit``, where Ctrl-C raises ``KeyboardInterrupt`` again: Lightning turns it into
     ``sys.exit(1)`` after its own shutdown and leaves SIGINT ignored."""
@@ -304,7 +294,7 @@ class ContinualLoop:
         self._keep_finished_decisions(done)
         self._save_progress(progress)  # the fingerprint, before anything trains
         if last is not None:
-            load_module_state(self.module, last)
+            self.module.load_checkpoint_file(last)
             print(f"[hispo-pl] resuming {self.run_dir}: tasks 1..{done} already trained")
         for k in range(done, len(self.stream)):
             try:

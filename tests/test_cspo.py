@@ -18,7 +18,6 @@ from hispo_pl.callbacks import AnchorExtension, SubspacePruning
 from hispo_pl.callbacks.subspace import SearchResult
 from hispo_pl.cli import main
 from hispo_pl.config import BackboneConfig
-from hispo_pl.loop import load_module_state
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.cspo import CSPO
 from hispo_pl.modules.hbc import HBC, GoalConditionedBC
@@ -278,7 +277,7 @@ def test_checkpoint_round_trip_acts_identically_on_every_task(tmp_path):
     raw = torch.load(path, map_location="cpu", weights_only=True)
     assert raw["hispo_pl_class"] == "hispo_pl.modules.cspo.CSPO"
     fresh = _module(seed=99)  # one anchor pair: the structure comes from the file
-    load_module_state(fresh, path)
+    fresh.load_checkpoint_file(path)
     for loaded in (fresh, GoalConditionedBC.from_checkpoint_file(str(path))):
         assert type(loaded) is CSPO and loaded.task_index == 2
         assert loaded.n_anchors("policy") == 3

@@ -11,7 +11,6 @@ from helpers import quiet_trainer
 from torch.utils.data import DataLoader
 
 from hispo_pl.config import BackboneConfig
-from hispo_pl.loop import load_module_state
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.hbc import GoalConditionedBC
 from hispo_pl.modules.hilow import HiLOW
@@ -361,7 +360,7 @@ def test_checkpoint_round_trip_restores_every_task(tmp_path):
     assert raw["hispo_pl_class"] == "hispo_pl.modules.hilow.HiLOW"
     assert raw["hyper_parameters"]["rank"] == RANK
     fresh = _module(seed=99)
-    load_module_state(fresh, path)
+    fresh.load_checkpoint_file(path)
     for loaded in (fresh, GoalConditionedBC.from_checkpoint_file(str(path))):
         assert type(loaded) is HiLOW and loaded.task_index == 2
         assert (loaded.n_anchors("high"), loaded.n_anchors("low")) == (4, 2)

@@ -12,7 +12,6 @@ from torch.utils.data import DataLoader
 
 import hispo_pl.modules.hispo as hispo_mod
 from hispo_pl.config import BackboneConfig
-from hispo_pl.loop import load_module_state
 from hispo_pl.modules.hispo import SUBSPACES, HiSPO, SubspacePolicy, training_alphas
 from hispo_pl.nn.hierarchy import high_input, low_input
 from hispo_pl.nn.mlp import gaussian_nll
@@ -449,7 +448,7 @@ def test_checkpoint_round_trip_restores_structure_and_every_task(tmp_path):
 
     fresh = _module(seed=99)
     assert fresh.n_anchors("high") == fresh.n_anchors("low") == 1
-    load_module_state(fresh, path)
+    fresh.load_checkpoint_file(path)
     assert fresh.task_index == 2
     for name in SUBSPACES:
         assert fresh.n_anchors(name) == m.n_anchors(name)
@@ -476,7 +475,7 @@ def test_load_into_a_larger_module_shrinks_it(tmp_path):
     big = _module(seed=1)
     for _ in range(4):
         big.add_anchor("low")
-    load_module_state(big, path)
+    big.load_checkpoint_file(path)
     assert (big.n_anchors("high"), big.n_anchors("low")) == (3, 2)
     for task in (0, 1, 2):
         assert torch.equal(_act(big, task), _act(m, task))

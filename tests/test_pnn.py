@@ -10,7 +10,6 @@ import torch
 from helpers import fit_tiny_stream
 
 from hispo_pl.config import BackboneConfig
-from hispo_pl.loop import load_module_state
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules import GoalConditionedBC, GrowingPolicy
 from hispo_pl.modules.pnn import PNN
@@ -276,7 +275,7 @@ def test_resume_from_a_checkpoint_adds_one_column_and_freezes_the_rest(tmp_path)
     _run_tasks(m, range(2))
     path = _checkpoint(m, tmp_path / "task_02.ckpt")
     resumed = _module()
-    load_module_state(resumed, path)  # as the ContinualLoop does on a rerun
+    resumed.load_checkpoint_file(path)  # as the ContinualLoop does on a rerun
     resumed.task_index = 2
     resumed.start_task(2)
     assert resumed.n_columns == 3 and _trainable(resumed) == _column_names(resumed, 2)

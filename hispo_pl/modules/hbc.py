@@ -97,6 +97,16 @@ class GoalConditionedBC(L.LightningModule):
         for p in self.parameters():
             p.requires_grad_(False)
 
+    def load_checkpoint(self, checkpoint: dict) -> None:
+        """Take a checkpoint's state in place: structure first (anchors, columns, networks),
+        then the weights. The one loader: the loop's resume and :meth:`from_checkpoint_file`."""
+        self.on_load_checkpoint(checkpoint)
+        self.load_state_dict(checkpoint["state_dict"])
+
+    def load_checkpoint_file(self, path: str | Path) -> None:
+        """:meth:`load_checkpoint` of a file, read with ``weights_only=True``."""
+        self.load_checkpoint(read_checkpoint(path))
+
     @classmethod
     def from_checkpoint_file(cls, path: str) -> GoalConditionedBC:
         """Rebuild whichever method wrote ``path`` (its class is stored in the file), on CPU.
@@ -127,8 +137,7 @@ class GoalConditionedBC(L.LightningModule):
             # LightningCLI adds private entries such as ``_class_path`` to the hyperparameters
             hparams = {k: v for k, v in checkpoint["hyper_parameters"].items() if k[:1] != "_"}
             module = method(**upgrade_hparams(hparams))
-            module.on_load_checkpoint(checkpoint)
-            module.load_state_dict(checkpoint["state_dict"])
+            module.load_checkpoint(checkpoint)
         except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as err:
             raise CheckpointError(
                 f"not a readable hispo-pl checkpoint: {path} ({type(err).__name__}: "
