@@ -12,8 +12,6 @@ does), and the newest anchor alone. Prints success over 100 seeded episodes and 
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
 
 import torch
 
@@ -23,6 +21,7 @@ from hispo_pl.decisions import extended_subspace_candidates
 from hispo_pl.evaluation import RolloutEvaluator, module_policy
 from hispo_pl.modules import GoalConditionedBC
 from hispo_pl.nn import eval_mode
+from hispo_pl.rundir import RunDir, task_label
 from hispo_pl.search import race_subspace
 
 
@@ -34,9 +33,9 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=1)
     args = p.parse_args()
     torch.set_num_threads(args.threads)
-    run, k = Path(args.run), args.task - 1
-    stream = json.loads((run / "progress.json").read_text())["stream"]
-    module = GoalConditionedBC.from_checkpoint_file(str(run / f"task_{args.task:02d}.ckpt"))
+    run, k = RunDir(args.run), args.task - 1
+    stream = run.read_progress()["stream"]
+    module = GoalConditionedBC.from_checkpoint_file(str(run.checkpoint(k)))
     dm = TaskDataModule(task=stream[k], stream=stream)
     dm.setup("fit")
     batches = dm.fixed_batches(16, seed=0)
@@ -50,7 +49,7 @@ def main() -> None:
         for name in module.subspace_names:
             cands = extended_subspace_candidates(1024, stored[name], generator)
             searched[name] = cands[race_subspace(module, name, cands, batches, probe, 32).best]
-    print(f"task {args.task}: {stream[k]} ({args.episodes} episodes)")
+    print(f"task {task_label(k)}: {stream[k]} ({args.episodes} episodes)")
     for label, alphas in (("stored", stored), ("searched", searched), ("newest", newest)):
         for name, alpha in alphas.items():
             rows = module.task_alphas(name).clone()

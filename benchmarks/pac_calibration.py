@@ -12,8 +12,6 @@ pass, a new variant fail).
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
 
 import torch
 
@@ -22,6 +20,7 @@ from hispo_pl.decisions import pac_rate
 from hispo_pl.modules import GoalConditionedBC
 from hispo_pl.nn import eval_mode
 from hispo_pl.nn.subspace import sample_dirichlet
+from hispo_pl.rundir import RunDir, task_label
 from hispo_pl.search import race_subspace
 
 
@@ -34,10 +33,10 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=1)
     args = p.parse_args()
     torch.set_num_threads(args.threads)
-    run = Path(args.run)
-    stream = json.loads((run / "progress.json").read_text())["stream"]
-    for k in range(1, len(stream)):
-        module = GoalConditionedBC.from_checkpoint_file(str(run / f"task_{k:02d}.ckpt"))
+    run = RunDir(args.run)
+    stream = run.read_progress()["stream"]
+    for k in range(1, len(stream)):  # task k's data, scored with the anchors after task k - 1
+        module = GoalConditionedBC.from_checkpoint_file(str(run.checkpoint(k - 1)))
         dm = TaskDataModule(task=stream[k], stream=stream)
         dm.setup("fit")
         batches = dm.fixed_batches(4, seed=0)
@@ -53,7 +52,8 @@ def main() -> None:
                     q = torch.quantile(d, torch.tensor([0.5, 0.9, 0.95])).tolist()
                     rates = "  ".join(f"P[d<={e}] {pac_rate(d, e):.3f}" for e in args.eps)
                     print(
-                        f"T{k:02d} -> T{k + 1:02d} {stream[k]:<28} {policy:<4} "
+                        f"T{task_label(k - 1):02d} -> T{task_label(k):02d} {stream[k]:<28} "
+                        f"{policy:<4} "
                         f"d quantiles 50/90/95 {q[0]:.3f} / {q[1]:.3f} / {q[2]:.3f}  {rates}"
                     )
 

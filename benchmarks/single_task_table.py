@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import subprocess
 import sys
 import time
@@ -22,6 +21,7 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 from hispo_pl.data.tasks import FAMILIES, parse_task
+from hispo_pl.rundir import RunDir
 
 
 def expand_tasks(items: list[str]) -> list[str]:
@@ -52,21 +52,21 @@ def fit_argv(config: Path, task: str, out: Path, extra: list[str]) -> list[str]:
     ]  # fmt: skip
 
 
-def result_path(out: Path, config: Path, task: str) -> Path:
-    return out / "runs" / run_name(config, task) / "version_0" / "result.json"
+def run_dir(out: Path, config: Path, task: str) -> RunDir:
+    return RunDir(out / "runs" / run_name(config, task) / "version_0")
 
 
 def run_one(config: Path, task: str, out: Path, extra: list[str]) -> dict:
-    path = result_path(out, config, task)
-    if path.exists():
-        return json.loads(path.read_text())
+    run = run_dir(out, config, task)
+    if run.result_file.exists():
+        return run.read_result()
     log = out / "logs" / f"{run_name(config, task)}.log"
     log.parent.mkdir(parents=True, exist_ok=True)
     with log.open("w") as fh:
         proc = subprocess.run(fit_argv(config, task, out, extra), stdout=fh, stderr=fh)
-    if proc.returncode != 0 or not path.exists():
+    if proc.returncode != 0 or not run.result_file.exists():
         raise RuntimeError(f"{run_name(config, task)} failed (exit {proc.returncode}); see {log}")
-    return json.loads(path.read_text())
+    return run.read_result()
 
 
 def write_tables(out: Path, configs: list[Path], tasks: list[str], results: dict) -> str:

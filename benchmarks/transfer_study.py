@@ -25,11 +25,13 @@ import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+from hispo_pl.rundir import RunDir
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _low(inputs: str, log_std: str) -> list[str]:
-    return ["--data.low_inputs", inputs, "--model.init_args.low_log_std", log_std]
+    return ["--data.low_inputs", inputs, "--model.init_args.backbone.low_log_std", log_std]
 
 
 SETTINGS: dict[str, list[str]] = {  # what the low policy sees, and its log-std
@@ -97,8 +99,7 @@ def fit_args(
 
 def second_task_records(path: Path) -> dict[str, dict]:
     """The decision records of the stream's second task, by subspace."""
-    lines = (Path(path) / "decisions.jsonl").read_text().splitlines()
-    return {r["subspace"]: r for r in map(json.loads, lines) if r["task"] == 1}
+    return {r["subspace"]: r for r in RunDir(path).read_decisions() if r["task"] == 1}
 
 
 def table(out: Path, settings, pairs, seeds) -> str:
@@ -111,10 +112,10 @@ def table(out: Path, settings, pairs, seeds) -> str:
     for setting in settings:
         for pair in pairs:
             for seed in seeds:
-                path = run_dir(out, setting, pair, seed)
-                if not (path / "results.json").exists():
+                path = RunDir(run_dir(out, setting, pair, seed))
+                if not path.has_results():
                     continue
-                success = json.loads((path / "results.json").read_text())["R"][1][1]
+                success = path.read_results()["R"][1][1]
                 for name, r in second_task_records(path).items():
                     train = r["l_prev_train"] / r["l_curr_train"]
                     rows.append(
@@ -145,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         for s in args.settings
         for p in args.pairs
         for seed in args.seeds
-        if not (run_dir(args.out, s, p, seed) / "results.json").exists()
+        if not RunDir(run_dir(args.out, s, p, seed)).has_results()
     ]
     if not args.report_only:
 
@@ -157,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
             cmd += fit_args(
                 args.out, setting, pair, seed, args.steps, args.episodes, args.task_episodes
             )
-            with open(path / "fit.log", "w") as log:
+            with open(RunDir(path).fit_log, "w") as log:
                 code = subprocess.call(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
             print(f"{setting} {pair} seed{seed}: exit {code}", flush=True)
 

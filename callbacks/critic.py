@@ -94,16 +94,14 @@ class CriticEvaluation(L.Callback):
             diagnostic_actions,
             seed,
         )
-        self.results: dict[str, CriticSearchResult] = {}
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         _require_critic(pl_module, type(self).__name__)
-        self.results = {}
 
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        self.results = self._run_search(trainer, pl_module)
+        pl_module.task_record.searches = self._run_search(trainer, pl_module)
 
     @torch.no_grad()
     def _run_search(self, trainer: L.Trainer, module) -> dict[str, CriticSearchResult]:
@@ -175,18 +173,16 @@ class CriticPruning(L.Callback):
         if eps < 0:
             raise ValueError(f"eps must be non-negative, got {eps}")
         self.eps = eps
-        self._search: CriticEvaluation | None = None
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         _require_critic(pl_module, type(self).__name__)
-        self._search = check_task_end_order(trainer.callbacks, self, CriticEvaluation)
+        check_task_end_order(trainer.callbacks, self, CriticEvaluation)
 
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        decisions = [
-            self._decide(pl_module, name, res) for name, res in self._search.results.items()
-        ]
+        searches = pl_module.task_record.searches  # CriticEvaluation's, just before
+        decisions = [self._decide(pl_module, name, res) for name, res in searches.items()]
         pl_module.freeze_all()
         log_decisions(trainer, pl_module, decisions)
         _log_critic(trainer, pl_module, decisions)

@@ -8,6 +8,7 @@ from typing_extensions import override
 
 from ..data.tasks import Task, parse_task
 from ..evaluation import RolloutEvaluator, RolloutResult, module_policy
+from ..rundir import task_label
 
 
 class RolloutEvaluation(L.Callback):
@@ -17,7 +18,10 @@ class RolloutEvaluation(L.Callback):
       or ``task_XX/eval/success`` (in a stream) at the global step;
     - at the end of training on the current task, or, when the datamodule belongs to a stream,
       on every task of the stream: ``eval/T{i:02d}/on_T{j:02d}/success`` at step i. That row
-      is kept in ``stream_row`` for the ContinualLoop.
+      goes to the module's ``task_record.success_row`` for the ContinualLoop.
+
+    The latest evaluation of the current task goes to ``task_record.evaluation`` (the CLI
+    prints it).
 
     Environments are built once per task and reused for the whole run.
 
@@ -38,8 +42,6 @@ class RolloutEvaluation(L.Callback):
             progress,
         )
         self._evaluators: dict[Task, RolloutEvaluator] = {}
-        self.last: dict[str, float] | None = None
-        self.stream_row: list[float] | None = None
 
     def _run(
         self, task: str | Task, pl_module: L.LightningModule, task_index: int | None
@@ -52,12 +54,15 @@ class RolloutEvaluation(L.Callback):
 
     def _evaluate_current(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         result = self._run(trainer.datamodule.task, pl_module, pl_module.task_index)
-        self.last = {
-            "success": result.success,
-            "episode_length": result.episode_length,
-            "flip_rate": result.flip_rate,
-            "step": trainer.global_step,
-        }
+        self._record(
+            pl_module,
+            {
+                "success": result.success,
+                "episode_length": result.episode_length,
+                "flip_rate": result.flip_rate,
+                "step": trainer.global_step,
+            },
+        )
         if trainer.logger is not None:
             prefix = pl_module.log_prefix
             trainer.logger.log_metrics(
@@ -75,15 +80,16 @@ class RolloutEvaluation(L.Callback):
             self._run(task, pl_module, j).success
             for j, task in enumerate(trainer.datamodule.stream)
         ]
-        self.stream_row = row
-        self.last = {"success": row[i], "step": trainer.global_step}
+        pl_module.task_record.success_row = row
+        self._record(pl_module, {"success": row[i], "step": trainer.global_step})
         if trainer.logger is not None:
-            metrics = {f"eval/T{i + 1:02d}/on_T{j + 1:02d}/success": s for j, s in enumerate(row)}
+            tag = lambda k: f"T{task_label(k):02d}"  # noqa: E731
+            metrics = {f"eval/{tag(i)}/on_{tag(j)}/success": s for j, s in enumerate(row)}
             trainer.logger.log_metrics(metrics, step=i)
 
-    @override
-    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
-        self.stream_row = None
+    def _record(self, pl_module: L.LightningModule, evaluation: dict[str, float]) -> None:
+        pl_module.task_record.evaluation = evaluation
+        pl_module.task_record.episodes = self.episodes
 
     @override
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:

@@ -4,14 +4,11 @@ anchors. Each hook is thin; the rules live in :mod:`hispo_pl.decisions`."""
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import Literal
 
 import lightning as L
-import numpy as np
 import torch
 from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_warn
@@ -29,6 +26,7 @@ from ..decisions import (
 from ..modules.hispo import SubspacePolicy
 from ..nn import eval_mode
 from ..nn.subspace import sample_dirichlet
+from ..rundir import RunDir, task_label
 from ..search import RaceOutcome, race_subspace, resolve_precision
 
 
@@ -158,13 +156,11 @@ class DirichletEvaluation(L.Callback):
         self.every_n_steps = every_n_steps
         self.refine_current = refine_current
         self.convergence_window = convergence_window
-        self.results: dict[str, SearchResult] = {}
         self._l_window: dict[str, float] = {}  # L_curr per subspace when the window opened
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         _require_subspace_policy(pl_module, type(self).__name__)
-        self.results = {}
         self._l_window = {}
 
     @override
@@ -197,11 +193,13 @@ class DirichletEvaluation(L.Callback):
 
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        self.results = self._run_search(trainer, pl_module, train_losses=True)
-        for name, res in self.results.items():
+        results = self._run_search(trainer, pl_module, train_losses=True)
+        for name, res in results.items():
             if name in self._l_window and res.l_curr > 0:
                 res.l_window = self._l_window[name]
                 res.improvement = res.l_window / res.l_curr - 1.0
+        pl_module.task_record.searches = results
+        pl_module.task_record.convergence_window = self.convergence_window
 
     @torch.no_grad()
     def _run_search(
@@ -270,16 +268,15 @@ class DirichletEvaluation(L.Callback):
         return results
 
     def _save(self, trainer, module, name, cands, race: RaceOutcome, result: SearchResult) -> None:
-        out = Path(trainer.default_root_dir) / "search"
-        out.mkdir(parents=True, exist_ok=True)
         probe = {}
         if race.probe_losses is not None:
             probe = {
                 "probe_alphas": cands.cpu().numpy(),
                 "probe_losses": race.probe_losses.cpu().numpy(),
             }
-        np.savez(
-            out / f"task_{module.task_index + 1:02d}_{name}.npz",
+        RunDir(trainer.default_root_dir).write_search(
+            module.task_index,
+            name,
             alphas=cands[race.survivors].cpu().numpy(),
             losses=race.losses.cpu().numpy(),
             l_curr=result.l_curr,
@@ -290,8 +287,7 @@ class DirichletEvaluation(L.Callback):
 
 def check_task_end_order(callbacks: list[L.Callback], pruning: L.Callback, search_type: type):
     """Task-end hooks run in list order: the search (an instance of ``search_type``), then
-    ``pruning``, then the rollout evaluation that must see the pruned policy. Returns the
-    search callback."""
+    ``pruning``, then the rollout evaluation that must see the pruned policy."""
     from .rollout import RolloutEvaluation
 
     pos = {id(cb): i for i, cb in enumerate(callbacks)}
@@ -303,7 +299,6 @@ def check_task_end_order(callbacks: list[L.Callback], pruning: L.Callback, searc
         isinstance(cb, RolloutEvaluation) and pos[id(cb)] < pos[id(pruning)] for cb in callbacks
     ):
         raise ValueError(f"list RolloutEvaluation after {prune}: it must see the pruned policy")
-    return search[0]
 
 
 class SubspacePruning(L.Callback):
@@ -330,18 +325,16 @@ class SubspacePruning(L.Callback):
         bad = {name: e for name, e in self.eps.items() if not e >= 0}
         if bad:  # checked here, not after a task has trained
             raise ValueError(f"SubspacePruning tolerances must be >= 0, got {bad}")
-        self._search: DirichletEvaluation | None = None
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         _require_subspace_policy(pl_module, type(self).__name__)
-        self._search = check_task_end_order(trainer.callbacks, self, DirichletEvaluation)
+        check_task_end_order(trainer.callbacks, self, DirichletEvaluation)
 
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        decisions = [
-            self._decide(pl_module, name, res) for name, res in self._search.results.items()
-        ]
+        searches = pl_module.task_record.searches  # DirichletEvaluation's, just before
+        decisions = [self._decide(pl_module, name, res) for name, res in searches.items()]
         pl_module.freeze_all()
         log_decisions(trainer, pl_module, decisions)
 
@@ -361,7 +354,8 @@ class SubspacePruning(L.Callback):
         if res.l_prev is not None and decided_by_budget(res.improvement, eps):
             rank_zero_warn(
                 f"task {task + 1}, {name} subspace ({action}): L_curr still fell by "
-                f"{res.improvement:.1%} over the last {self._search.convergence_window:.0%} of "
+                f"{res.improvement:.1%} over the last "
+                f"{module.task_record.convergence_window:.0%} of "
                 f"the steps, more than eps = {eps}; the step budget, not the task, decided "
                 "this. Train longer (--trainer.max_steps) for a decision about the task."
             )
@@ -377,15 +371,11 @@ class SubspacePruning(L.Callback):
 
 def log_decisions(trainer: L.Trainer, module, decisions: list[dict]) -> None:
     """Append decisions to ``decisions.jsonl`` in the run dir and log them to TensorBoard."""
-    root = Path(trainer.default_root_dir)
-    root.mkdir(parents=True, exist_ok=True)
-    with open(root / "decisions.jsonl", "a") as f:
-        for d in decisions:
-            f.write(json.dumps(d) + "\n")
+    RunDir(trainer.default_root_dir).append_decisions(decisions)
     logger = trainer.logger
     if logger is None:
         return
-    task = module.task_index + 1
+    task = task_label(module.task_index)
     metrics = {f"anchors/{d['subspace']}/count": d["anchors"] for d in decisions}
     for d in decisions:
         if d.get("l_prev") is not None:

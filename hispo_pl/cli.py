@@ -26,8 +26,8 @@ from lightning.pytorch.cli import LightningCLI
 
 from .data.datamodule import TaskDataModule
 from .errors import ConfigError, Interrupted, UserError
-from .io import atomic_write_text
 from .modules.hbc import GoalConditionedBC
+from .rundir import RunDir, task_label
 
 
 def set_num_threads(n: int) -> None:
@@ -63,9 +63,11 @@ class HispoCLI(LightningCLI):
         for flag, (text, _) in METHOD_KNOBS.items():
             kind = float if flag.startswith("eps") else int
             parser.add_argument(f"--{flag}", type=kind | None, default=None, help=text)
-        linked = ("obs_dim", "action_dim", "goal_dim", "binary_actions", "low_obs", "low_velocity")
-        for dim in linked:
+        for dim in ("obs_dim", "action_dim", "goal_dim"):
             parser.link_arguments(f"data.{dim}", f"model.init_args.{dim}", apply_on="instantiate")
+        for name in ("binary_actions", "low_obs", "low_velocity"):  # what the data defines
+            target = f"model.init_args.backbone.{name}"
+            parser.link_arguments(f"data.{name}", target, apply_on="instantiate")
 
     def _parse_ckpt_path(self) -> None:
         """Check ``--ckpt_path`` before Lightning reads its hyperparameters: a stream refuses
@@ -105,23 +107,22 @@ class HispoCLI(LightningCLI):
         self.stream_results = run_stream_from_cli(self, model, datamodule)
 
     def after_fit(self) -> None:
-        from .callbacks import RolloutEvaluation
-
         if self.datamodule.stream is not None:
             print_stream_results(self.stream_results)
             return
-        for cb in self.trainer.callbacks:
-            if isinstance(cb, RolloutEvaluation) and cb.last is not None:
-                task = self.datamodule.task
-                print(
-                    f"[hispo-pl] {type(self.model).__name__} on {task}: success "
-                    f"{100 * cb.last['success']:.1f}% over {cb.episodes} episodes, mean episode "
-                    f"length {cb.last['episode_length']:.1f}{_flips(cb.last['flip_rate'])}, after "
-                    f"{cb.last['step']} steps ({self.fit_seconds:.0f} s with evaluations)"
-                )
-                if self.trainer.log_dir:
-                    write_task_result(self.trainer.log_dir, self.model, task, cb, self.fit_seconds)
-                    print(f"[hispo-pl] TensorBoard logs: {self.trainer.log_dir}")
+        record = self.model.task_record
+        if record.evaluation is None:  # no RolloutEvaluation callback
+            return
+        last, task = record.evaluation, self.datamodule.task
+        print(
+            f"[hispo-pl] {type(self.model).__name__} on {task}: success "
+            f"{100 * last['success']:.1f}% over {record.episodes} episodes, mean episode "
+            f"length {last['episode_length']:.1f}{_flips(last['flip_rate'])}, after "
+            f"{last['step']} steps ({self.fit_seconds:.0f} s with evaluations)"
+        )
+        if self.trainer.log_dir:
+            write_task_result(self.trainer.log_dir, self.model, task, self.fit_seconds)
+            print(f"[hispo-pl] TensorBoard logs: {self.trainer.log_dir}")
 
 
 # flag -> (help, {callback class name: its parameter}): the knobs of the method configs'
@@ -271,7 +272,7 @@ def _plain(config: dict) -> dict:
 
 
 def run_fingerprint(config: dict) -> dict:
-    """Every setting that defines a stream run, flat (``model.init_args.lr: 0.001``,
+    """Every setting that defines a stream run, flat (``model.init_args.optim.lr: 0.001``,
     ``trainer.callbacks[1].init_args.eps_high: 0.1``), without :data:`NOT_IN_FINGERPRINT`."""
     flat: dict = {}
 
@@ -291,17 +292,19 @@ def run_fingerprint(config: dict) -> dict:
     return flat
 
 
-def write_task_result(log_dir: str, model, task, callback, seconds: float) -> None:
-    """``result.json`` beside a single-task run's logs: its final evaluation, for tables
-    (``benchmarks/single_task_table.py``) without parsing TensorBoard files."""
+def write_task_result(log_dir: str, model, task, seconds: float) -> None:
+    """``result.json`` beside a single-task run's logs: its final evaluation (the module's
+    task record), for tables (``benchmarks/single_task_table.py``) without parsing
+    TensorBoard files."""
+    record = model.task_record
     result = {
         "method": type(model).__name__,
         "task": str(task),
-        "episodes": callback.episodes,
+        "episodes": record.episodes,
         "seconds": round(seconds, 1),
-        **{k: float(v) for k, v in callback.last.items()},
+        **{k: float(v) for k, v in record.evaluation.items()},
     }
-    atomic_write_text(Path(log_dir) / "result.json", json.dumps(result, indent=2) + "\n")
+    RunDir(log_dir).write_result(result)
 
 
 def stream_run_dir(logger, root: str, stream, seed) -> Path:
@@ -390,12 +393,11 @@ def decision_lines(decisions: list[dict]) -> list[str]:
     the rule compared (``L_prev / L_curr`` against ``1 + eps``)."""
     from .console import decision_parts
 
-    tasks = sorted({d["task"] for d in decisions})
     lines = []
-    for t in tasks:
+    for t in sorted({d["task"] for d in decisions}):
         parts = decision_parts([d for d in decisions if d["task"] == t])
         if parts:
-            lines.append(f"task {t + 1}: " + ", ".join(parts))
+            lines.append(f"task {task_label(t)}: " + ", ".join(parts))
     return lines
 
 
@@ -408,13 +410,11 @@ def print_stream_results(results: dict) -> None:
     print("[hispo-pl] " + "  ".join(parts))
     if results.get("anchors"):
         print(f"[hispo-pl] anchors per subspace: {results['anchors']}")
-    decisions = Path(results["run_dir"]) / "decisions.jsonl"
-    if decisions.exists():
-        records = [json.loads(x) for x in decisions.read_text().splitlines() if x]
-        for line in decision_lines(records):
-            print(f"[hispo-pl] {line}  (L_prev / L_curr vs 1 + eps)")
+    run_dir = RunDir(results["run_dir"])
+    for line in decision_lines(run_dir.read_decisions()):
+        print(f"[hispo-pl] {line}  (L_prev / L_curr vs 1 + eps)")
     print(f"[hispo-pl] wall time per task (s): {[round(t) for t in results['wall_time_s']]}")
-    print(f"[hispo-pl] results: {results['run_dir']}/results.json")
+    print(f"[hispo-pl] results: {run_dir.results_file}")
     if any(Path(results["run_dir"]).glob("events.out.tfevents.*")):
         print(f"[hispo-pl] curves and decisions: tensorboard --logdir {results['run_dir']}")
 
@@ -578,8 +578,8 @@ def load_checkpoint_policy(
         )
     for task in tasks:
         for dim in ("obs_dim", "action_dim"):
-            built, needed = module.hparams.get(dim), getattr(task.env_family, dim)
-            if built is not None and built != needed:
+            built, needed = getattr(module, dim), getattr(task.env_family, dim)
+            if built != needed:
                 parser.error(
                     f"{ckpt} was trained with {dim} {built}, but {task} has {dim} {needed}"
                 )

@@ -22,34 +22,15 @@ import lightning as L
 import numpy as np
 import torch
 
+from .config import upgrade_fingerprint
 from .console import lightning_notices_once, quiet_lightning_notices, say, task_header, task_summary
 from .data.datamodule import TaskDataModule
 from .data.tasks import Task, parse_task
 from .errors import Interrupted, RunDirError
-from .io import atomic_write_text
 from .metrics import continual_metrics, memory_ratio, module_bytes, results_row_table
 from .modules.hispo import SubspacePolicy
+from .rundir import RunDir, task_label
 from .stream_report import log_stream_end, log_task_end
-
-PROGRESS_FILE = "progress.json"
-RESULTS_FILE = "results.json"
-DECISIONS_FILE = "decisions.jsonl"  # written by hispo_pl.callbacks.subspace.log_decisions
-LOCK_FILE = "run.lock"
-
-
-def checkpoint_path(run_dir: Path, task_index: int) -> Path:
-    """``task_01.ckpt`` for the first task: names count tasks from 1, like the paper."""
-    return Path(run_dir) / f"task_{task_index + 1:02d}.ckpt"
-
-
-def task_config_path(run_dir: Path, task_index: int) -> Path:
-    """``task_01.config.yaml``: the configuration task 1 was trained with."""
-    return Path(run_dir) / f"task_{task_index + 1:02d}.config.yaml"
-
-
-def partial_checkpoint_path(run_dir: Path, task_index: int) -> Path:
-    """``task_01.partial.ckpt``: the first task part-way through (see :class:`TaskCheckpoint`)."""
-    return Path(run_dir) / f"task_{task_index + 1:02d}.partial.ckpt"
 
 
 def _sampler_generators(trainer: L.Trainer) -> list[np.random.Generator]:
@@ -120,16 +101,6 @@ class TaskCheckpoint(L.Callback):
         self._pending = state_dict
 
 
-def load_module_state(module: L.LightningModule, path: Path) -> None:
-    """Load a task checkpoint into ``module`` in place (structure restored first); plain
-    tensors and values only, so ``weights_only=True`` holds."""
-    from .modules.hbc import read_checkpoint
-
-    checkpoint = read_checkpoint(path)
-    module.on_load_checkpoint(checkpoint)
-    module.load_state_dict(checkpoint["state_dict"])
-
-
 def fit_interruptibly(trainer: L.Trainer, module: L.LightningModule, datamodule, **kwargs) -> None:
     """``trainer.fit``, where Ctrl-C raises ``KeyboardInterrupt`` again: Lightning turns it into
     ``sys.exit(1)`` after its own shutdown and leaves SIGINT ignored."""
@@ -165,8 +136,8 @@ class RunDirLock:
         RunDirError: on enter, when another process holds the lock.
     """
 
-    def __init__(self, run_dir: Path):
-        self.path = Path(run_dir) / LOCK_FILE
+    def __init__(self, run_dir: RunDir | str | Path):
+        self.path = RunDir.of(run_dir).lock_file
         self._file = None
 
     def __enter__(self) -> RunDirLock:
@@ -238,7 +209,7 @@ class ContinualLoop:
         module: L.LightningModule,
         make_datamodule: Callable[[str], TaskDataModule],
         make_trainer: Callable[[int], L.Trainer],
-        run_dir: str | Path,
+        run_dir: RunDir | str | Path,
         reference_bytes: int | None = None,
         scratch_success: Sequence[float] | None = None,
         seed: int | None = None,
@@ -251,7 +222,7 @@ class ContinualLoop:
         self.module = module
         self.make_datamodule = make_datamodule
         self.make_trainer = make_trainer
-        self.run_dir = Path(run_dir)
+        self.run_dir = RunDir.of(run_dir)
         self.reference_bytes = reference_bytes
         self.scratch_success = scratch_success
         self.seed = seed
@@ -264,24 +235,25 @@ class ContinualLoop:
     # --- progress on disk -------------------------------------------------------------------
 
     def _load_progress(self) -> dict:
-        path = self.run_dir / PROGRESS_FILE
         fresh = {"stream": self.stream, "rows": [], "wall_time_s": []}
         if self.fingerprint is not None:
             fresh["fingerprint"] = self.fingerprint
-        if not path.exists():
-            return fresh
         try:
-            progress = json.loads(path.read_text())
+            progress = self.run_dir.read_progress()
         except ValueError as err:
             raise RunDirError(
-                f"{path} is not readable JSON ({err}); move the run directory away to start over"
+                f"{self.run_dir.progress_file} is not readable JSON ({err}); move the run "
+                "directory away to start over"
             ) from None
+        if progress is None:
+            return fresh
         if progress["stream"] != self.stream:
             raise RunDirError(
                 f"{self.run_dir} holds a run of stream {progress['stream']}, not {self.stream}; "
                 "choose another run directory (e.g. --trainer.logger.init_args.version)"
             )
         stored = progress.get("fingerprint")
+        stored = upgrade_fingerprint(stored) if stored is not None else None
         differing = differing_keys(stored or {}, self.fingerprint or {})
         if self.fingerprint is not None and stored is not None and differing:
             diff = "\n  ".join(differing)
@@ -296,70 +268,58 @@ class ContinualLoop:
         return progress
 
     def _save_progress(self, progress: dict) -> None:
-        atomic_write_text(self.run_dir / PROGRESS_FILE, json.dumps(progress, indent=1))
+        self.run_dir.write_progress(progress)
 
     def _keep_finished_decisions(self, done: int) -> None:
         """Drop ``decisions.jsonl`` records of tasks that did not finish (a kill after a task's
         decisions but before its progress was saved), so a resumed task's records appear
         once. Records carry the 0-based ``task``."""
-        path = self.run_dir / DECISIONS_FILE
-        if not path.exists():
-            return
-        lines = path.read_text().splitlines(keepends=True)
-        kept = []
-        for line in lines:
-            try:
-                task = json.loads(line).get("task")
-            except ValueError:  # a line cut by a kill
-                continue
-            if isinstance(task, int) and task < done:
-                kept.append(line if line.endswith("\n") else line + "\n")
-        if kept != lines:
-            atomic_write_text(path, "".join(kept))
+
+        def finished(record: dict) -> bool:
+            task = record.get("task")
+            return isinstance(task, int) and task < done
+
+        self.run_dir.keep_decisions(finished)
 
     # --- the loop ---------------------------------------------------------------------------
 
     def run(self) -> dict:
         """Train the tasks not finished yet, holding the run directory's lock throughout."""
-        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.run_dir.path.mkdir(parents=True, exist_ok=True)
         with RunDirLock(self.run_dir), lightning_notices_once():
             return self._run()
 
     def _run(self) -> dict:
         progress = self._load_progress()
         done = len(progress["rows"])
-        if done and not checkpoint_path(self.run_dir, done - 1).exists():
-            missing = checkpoint_path(self.run_dir, done - 1).name
+        last = self.run_dir.checkpoint(done - 1) if done else None
+        if last is not None and not last.exists():
             raise MissingCheckpointError(
-                f"{PROGRESS_FILE} lists {done} finished tasks but {missing} is missing"
+                f"{RunDir.PROGRESS} lists {done} finished tasks but {last.name} is missing"
             )
         self._keep_finished_decisions(done)
         self._save_progress(progress)  # the fingerprint, before anything trains
-        if done:
-            load_module_state(self.module, checkpoint_path(self.run_dir, done - 1))
+        if last is not None:
+            self.module.load_checkpoint_file(last)
             print(f"[hispo-pl] resuming {self.run_dir}: tasks 1..{done} already trained")
         for k in range(done, len(self.stream)):
             try:
                 self._train_task(k, progress)
             except KeyboardInterrupt:
                 kept = f"tasks 1..{k} are finished and kept" if k else "no task had finished"
-                partial = partial_checkpoint_path(self.run_dir, k)
+                partial = self.run_dir.partial_checkpoint(k)
                 if self.checkpoint_every > 0 and partial.exists():
-                    kept += f", task {k + 1} is saved part-way ({partial.name})"
+                    kept += f", task {task_label(k)} is saved part-way ({partial.name})"
                 raise Interrupted(
-                    f"interrupted during task {k + 1} of {len(self.stream)}; {kept} in "
+                    f"interrupted during task {task_label(k)} of {len(self.stream)}; {kept} in "
                     f"{self.run_dir}. Rerun the same command to resume."
                 ) from None
         results = self._results(progress)
-        atomic_write_text(self.run_dir / RESULTS_FILE, json.dumps(results, indent=1))
+        self.run_dir.write_results(results)
         if self._loggers:
-            log_stream_end(self._loggers, results, self._decisions(), self.fingerprint or {})
+            decisions = self.run_dir.read_decisions()
+            log_stream_end(self._loggers, results, decisions, self.fingerprint or {})
         return results
-
-    def _decisions(self) -> list[dict]:
-        path = self.run_dir / DECISIONS_FILE
-        lines = path.read_text().splitlines() if path.exists() else []
-        return [json.loads(line) for line in lines if line.strip()]
 
     def _rollout_picture(self, k: int):
         """Ten of task ``k``'s scored rollouts drawn on its maze, for TensorBoard."""
@@ -377,42 +337,36 @@ class ContinualLoop:
             workers = os.environ.get("PL_SEED_WORKERS") == "1"  # as the CLI seeded
             L.seed_everything(self.seed + k, workers=workers, verbose=False)
         self.module.task_index = k
-        self.module.log_prefix = f"task_{k + 1:02d}/"
+        self.module.log_prefix = f"task_{task_label(k):02d}/"
         trainer = self.make_trainer(k)
-        partial = partial_checkpoint_path(self.run_dir, k)
+        partial = self.run_dir.partial_checkpoint(k)
         if self.checkpoint_every > 0:
             trainer.callbacks.append(TaskCheckpoint(partial, self.checkpoint_every))
         resume = partial if partial.exists() and self.checkpoint_every > 0 else None
         if resume is not None:
-            print(f"[hispo-pl] resuming task {k + 1} from {partial.name}")
+            print(f"[hispo-pl] resuming task {task_label(k)} from {partial.name}")
         datamodule = self.make_datamodule(self.stream[k])
         say(task_header(k, len(self.stream), self.stream[k], trainer.max_steps))
         fit_interruptibly(trainer, self.module, datamodule, ckpt_path=resume, weights_only=True)
-        row = self._row_from(trainer, k)
+        row = self.module.task_record.success_row  # RolloutEvaluation's, at the task's end
+        if row is None:
+            raise RuntimeError(
+                "the stream needs a RolloutEvaluation callback to measure R after each task"
+            )
         self._loggers = list(trainer.loggers)
         if self._loggers:
             picture = self._rollout_picture(k) if self.pictures else None
             log_task_end(self._loggers, k, row, picture)
-        trainer.save_checkpoint(checkpoint_path(self.run_dir, k), weights_only=False)
+        trainer.save_checkpoint(self.run_dir.checkpoint(k), weights_only=False)
         if self.config_text is not None:
-            atomic_write_text(task_config_path(self.run_dir, k), self.config_text)
-        progress["rows"].append(row)
+            self.run_dir.write_task_config(k, self.config_text)
+        progress["rows"].append(list(row))
         elapsed = time.perf_counter() - start
         progress["wall_time_s"].append(elapsed)
         self._save_progress(progress)
         partial.unlink(missing_ok=True)
-        say(task_summary(k, len(self.stream), elapsed, row, self._decisions()))
+        say(task_summary(k, len(self.stream), elapsed, row, self.run_dir.read_decisions()))
         quiet_lightning_notices()  # shown with the first task; the next ones repeat them
-
-    def _row_from(self, trainer: L.Trainer, k: int) -> list[float]:
-        from .callbacks import RolloutEvaluation
-
-        for cb in trainer.callbacks:
-            if isinstance(cb, RolloutEvaluation) and cb.stream_row is not None:
-                return list(cb.stream_row)
-        raise RuntimeError(
-            "the stream needs a RolloutEvaluation callback to measure R after each task"
-        )
 
     def _results(self, progress: dict) -> dict:
         n = len(self.stream)

@@ -9,9 +9,9 @@ import torch
 from helpers import fit_tiny_stream
 
 from hispo_pl.callbacks.networks import trains_on
+from hispo_pl.config import BackboneConfig
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules import GoalConditionedBC, NetworkPerTask
-from hispo_pl.modules.hbc import FlatNet, HierarchicalNet
 
 ROOT = Path(__file__).resolve().parents[1]
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"]
@@ -20,9 +20,8 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _module(init="fresh", keep="all", backbone="hbc") -> NetworkPerTask:
-    return NetworkPerTask(
-        4, 2, backbone=backbone, init=init, keep=keep, high_hidden=8, low_hidden=16
-    )
+    config = BackboneConfig(kind=backbone, high_hidden=8, low_hidden=16)
+    return NetworkPerTask(4, 2, backbone=config, init=init, keep=keep)
 
 
 def _trainable(module) -> set[str]:
@@ -111,8 +110,8 @@ def test_checkpoint_alone_restores_every_tasks_policy(tmp_path):
 
 def test_reference_model_is_one_backbone_network():
     hbc, bc = _module(backbone="hbc"), _module(backbone="bc")
-    assert isinstance(hbc.reference_model(), HierarchicalNet)
-    assert isinstance(bc.reference_model(), FlatNet)
+    assert hbc.reference_model().names == ("high", "low")
+    assert bc.reference_model().names == ("policy",)
     assert module_bytes(hbc.reference_model()) == module_bytes(hbc.nets[0])
     with pytest.raises(ValueError, match="init must be"):
         NetworkPerTask(4, 2, init="copy")
@@ -152,7 +151,7 @@ def test_flat_bc_version_runs_on_the_same_loop(tiny_umaze, tmp_path):
     results = _fit("bc-ftn", tmp_path)
     run_dir = tmp_path / "pointmaze-1" / "seed0"
     module = GoalConditionedBC.from_checkpoint_file(str(run_dir / "task_02.ckpt"))
-    assert all(isinstance(net, FlatNet) for net in module.nets) and len(module.nets) == 2
+    assert all(net.names == ("policy",) for net in module.nets) and len(module.nets) == 2
     assert results["MEM"] == pytest.approx(2, rel=1e-3) and results["BWT"] == 0.0
 
 

@@ -157,12 +157,6 @@ def test_plan_runs_builds_fit_commands(tmp_path):
     )
 
 
-def test_results_file_names_match_the_loop():
-    from hispo_pl import loop
-
-    assert bm.RESULTS_FILE == loop.RESULTS_FILE and bm.PROGRESS_FILE == loop.PROGRESS_FILE
-
-
 # --- aggregation ------------------------------------------------------------------------------
 
 

@@ -9,6 +9,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from hispo_pl.config import BackboneConfig
 from hispo_pl.modules import CSPO, HBC, PNN, HiLOW, HiSPO
 from hispo_pl.modules.columns import NetworkPerTask
 from hispo_pl.modules.hbc import BC
@@ -57,20 +58,18 @@ def _batch(n: int = 256, seed: int = 0) -> dict[str, torch.Tensor]:
     }
 
 
+NET = BackboneConfig(high_hidden=16, low_hidden=64, binary_actions=BUTTONS)
+FLAT = BackboneConfig(kind="bc", low_hidden=64, binary_actions=BUTTONS)
 MODULES = {
-    "hbc": lambda: HBC(OBS, ACT, GOAL, high_hidden=16, low_hidden=64, binary_actions=BUTTONS),
-    "bc": lambda: BC(OBS, ACT, GOAL, hidden=64, binary_actions=BUTTONS),
-    "hispo": lambda: HiSPO(OBS, ACT, GOAL, 16, 64, binary_actions=BUTTONS),
-    "cspo": lambda: CSPO(OBS, ACT, GOAL, 16, 64, binary_actions=BUTTONS),
-    "hilow": lambda: HiLOW(OBS, ACT, GOAL, 16, 64, rank=2, binary_actions=BUTTONS),
-    "pnn": lambda: PNN(OBS, ACT, GOAL, high_hidden=16, low_hidden=64, binary_actions=BUTTONS),
-    "bc-pnn": lambda: PNN(OBS, ACT, GOAL, backbone="bc", low_hidden=64, binary_actions=BUTTONS),
-    "scn": lambda: NetworkPerTask(
-        OBS, ACT, GOAL, high_hidden=16, low_hidden=64, binary_actions=BUTTONS
-    ),
-    "ewc": lambda: RegularizedFineTuning(
-        OBS, ACT, GOAL, high_hidden=16, low_hidden=64, binary_actions=BUTTONS
-    ),
+    "hbc": lambda: HBC(OBS, ACT, GOAL, NET),
+    "bc": lambda: BC(OBS, ACT, GOAL, FLAT),
+    "hispo": lambda: HiSPO(OBS, ACT, GOAL, NET),
+    "cspo": lambda: CSPO(OBS, ACT, GOAL, NET),
+    "hilow": lambda: HiLOW(OBS, ACT, GOAL, NET, rank=2),
+    "pnn": lambda: PNN(OBS, ACT, GOAL, NET),
+    "bc-pnn": lambda: PNN(OBS, ACT, GOAL, FLAT),
+    "scn": lambda: NetworkPerTask(OBS, ACT, GOAL, NET),
+    "ewc": lambda: RegularizedFineTuning(OBS, ACT, GOAL, NET),
 }
 
 
@@ -104,22 +103,22 @@ def test_every_method_learns_buttons_and_presses_them(name):
 
 
 def test_reference_model_has_the_same_head():
-    module = HiSPO(OBS, ACT, GOAL, 16, 64, binary_actions=BUTTONS)
+    module = HiSPO(OBS, ACT, GOAL, NET)
     assert module.reference_model().low.binary == BUTTONS
-    assert BC(OBS, ACT, GOAL, hidden=8, binary_actions=BUTTONS).reference_model().policy.binary == 6
+    assert BC(OBS, ACT, GOAL, FLAT).reference_model().policy.binary == 6
 
 
 def test_search_scores_buttons_by_probability():
     """The squared-error score compares button probabilities with the data, so a weight vector
     whose logits are right but over-confident is not punished as if logits were actions."""
     torch.manual_seed(0)
-    module = HiSPO(OBS, ACT, GOAL, 16, 64, binary_actions=BUTTONS)
+    module = HiSPO(OBS, ACT, GOAL, NET)
     batch = _batch(64)
     alphas = torch.ones(1, 1)
     low = module.policies["low"]
     with torch.no_grad():
         low.eval()
-        x, target = module._io("low", batch)
+        x, target = module.policies.inputs("low", batch)
         mean, _ = low(x, alphas)
     expected = (low.prediction(mean.float()) - target).pow(2).sum(-1).mean(-1)
     scored = module.score_alphas("low", alphas, batch, loss="mse")

@@ -21,13 +21,13 @@ from hispo_pl.callbacks import (
     SubspacePruning,
 )
 from hispo_pl.callbacks.subspace import SearchResult
+from hispo_pl.config import BackboneConfig
 from hispo_pl.data.datamodule import TaskDataModule
-from hispo_pl.loop import load_module_state
 from hispo_pl.modules.hbc import HBC
 from hispo_pl.modules.hispo import SUBSPACES, HiSPO
 
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-IA[3]", "pointmaze-umaze-PO[3]"]
-SIZES = {"obs_dim": 4, "action_dim": 2, "high_hidden": 8, "low_hidden": 16}
+SIZES = {"obs_dim": 4, "action_dim": 2, "backbone": BackboneConfig(high_hidden=8, low_hidden=16)}
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -116,13 +116,13 @@ def test_first_task_stores_the_single_anchor(first_task):
 
 
 def test_stream_evaluation_row_covers_the_whole_stream(first_task):
-    rollout = first_task["callbacks"][-1]
+    rollout, record = first_task["callbacks"][-1], first_task["module"].task_record
     assert isinstance(rollout, RolloutEvaluation)
-    row = rollout.stream_row
+    row = record.success_row  # what the loop reads
     assert row is not None and len(row) == len(STREAM)
     assert all(0.0 <= s <= 1.0 for s in row)
     assert all(s * rollout.episodes == round(s * rollout.episodes) for s in row)  # k/episodes
-    assert rollout.last["success"] == row[0]
+    assert record.evaluation["success"] == row[0] and record.episodes == rollout.episodes
     # one evaluator (and its environments) per task of the stream, kept for the next tasks
     assert {t.spec for t in rollout._evaluators} == set(STREAM)
 
@@ -132,7 +132,7 @@ def test_stream_evaluation_row_covers_the_whole_stream(first_task):
 
 def test_extension_happens_before_the_optimiser_and_a_huge_eps_prunes(first_task, tmp_path):
     module = _after_first_task()
-    load_module_state(module, first_task["ckpt"])
+    module.load_checkpoint_file(first_task["ckpt"])
     old_params = list(module.parameters())  # kept alive: a freed object's id can be reused
     old = {id(p) for p in old_params}
     recorder = RecordOptimizer()
@@ -170,7 +170,7 @@ def test_extension_happens_before_the_optimiser_and_a_huge_eps_prunes(first_task
 def test_extension_trains_only_the_newest_anchor(first_task, tmp_path):
     """While task 1 trains, the anchors of task 0 do not move; the new one does."""
     module = _after_first_task()
-    load_module_state(module, first_task["ckpt"])
+    module.load_checkpoint_file(first_task["ckpt"])
     before = {k: v.clone() for k, v in module.state_dict().items() if k.startswith("policies")}
     _fit(module, 1, tmp_path, [AnchorExtension()])  # no search/pruning: keep both anchors
     for name in SUBSPACES:
@@ -184,7 +184,7 @@ def test_extension_trains_only_the_newest_anchor(first_task, tmp_path):
 
 def test_anchor_extension_adds_once_per_task(first_task, tmp_path):
     module = _after_first_task()
-    load_module_state(module, first_task["ckpt"])
+    module.load_checkpoint_file(first_task["ckpt"])
     module.task_index = 1
     trainer = L.Trainer(logger=False, callbacks=[AnchorExtension()], default_root_dir=tmp_path)
     ext = trainer.callbacks[0]
@@ -198,7 +198,7 @@ def test_anchor_extension_adds_once_per_task(first_task, tmp_path):
 def test_kept_anchors_grow_the_search_to_the_previous_simplex(first_task, tmp_path, monkeypatch):
     monkeypatch.setattr(subspace_callbacks, "keep_previous", lambda *args: False)
     module = _after_first_task()
-    load_module_state(module, first_task["ckpt"])
+    module.load_checkpoint_file(first_task["ckpt"])
     for k in (1, 2):
         _fit(module, k, tmp_path, _callbacks())
     for name in SUBSPACES:
@@ -278,7 +278,7 @@ def test_rollout_before_pruning_is_rejected(tiny_umaze, tmp_path):
 @pytest.mark.parametrize("callback", [AnchorExtension, DirichletEvaluation, SubspacePruning])
 def test_subspace_callbacks_reject_a_plain_hbc(tiny_umaze, tmp_path, callback):
     cbs = [callback()] if callback is not SubspacePruning else [DirichletEvaluation(), callback()]
-    hbc = HBC(obs_dim=4, action_dim=2, high_hidden=8, low_hidden=16)
+    hbc = HBC(**SIZES)
     _fit_expecting(hbc, cbs, tmp_path, TypeError, "SubspacePolicy")
 
 
@@ -300,7 +300,7 @@ class RecordLogger(Logger):
 
 def test_periodic_search_logs_losses_without_deciding(first_task, tmp_path):
     module = _after_first_task()
-    load_module_state(module, first_task["ckpt"])
+    module.load_checkpoint_file(first_task["ckpt"])
     module.task_index = 1
     logger = RecordLogger()
     search = DirichletEvaluation(n_candidates=8, n_batches=2, every_n_steps=2)

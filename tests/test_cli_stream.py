@@ -10,6 +10,7 @@ from helpers import tiny_stream_args
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from hispo_pl.cli import main
+from hispo_pl.config import BackboneConfig
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.hbc import HBC
 
@@ -43,16 +44,8 @@ def test_stream_fit_prints_metrics_logs_and_resumes(tiny_umaze, tmp_path, capsys
     assert results["R"][1][0] == results["R"][0][0]
     assert results["MEM"] > 0  # a reference model size is passed by the CLI
     # ... that of the single-task HBC with the method config's architecture
-    reference = HBC(
-        4,
-        2,
-        high_hidden=64,
-        low_hidden=256,
-        high_log_std=0.0,
-        low_obs=False,
-        low_velocity=True,
-        low_log_std=0.0,
-    )
+    goal_space = dict(low_obs=False, low_velocity=True)
+    reference = HBC(4, 2, backbone=BackboneConfig(high_log_std=0.0, low_log_std=0.0, **goal_space))
     assert results["MEM"] == pytest.approx(results["stored_bytes"] / module_bytes(reference))
     assert f"anchors per subspace: {results['anchors']}" in out
     assert f"tensorboard --logdir {run_dir}" in out

@@ -13,12 +13,14 @@ from helpers import fit_tiny_stream
 from hispo_pl.callbacks import CriticEvaluation, CriticPruning
 from hispo_pl.callbacks.critic import CriticSearchResult
 from hispo_pl.callbacks.subspace import check_task_end_order
+from hispo_pl.config import BackboneConfig
 from hispo_pl.decisions import critic_extends
 from hispo_pl.iql import expectile_loss, goal_reward, polyak_update, td_loss, td_target
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules import CSP, CSPO, CriticScoredSubspace
-from hispo_pl.modules.hbc import HBC, GoalConditionedBC
+from hispo_pl.modules.hbc import GoalConditionedBC
 from hispo_pl.nn.critic import CriticConfig, SubspaceCritic
+from hispo_pl.nn.hierarchy import high_input, low_input
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -123,7 +125,7 @@ def test_critic_extends_iff_the_new_value_beats_the_old_by_eps():
 
 # --- the module ----------------------------------------------------------------------------------
 
-SIZES = {"obs_dim": 4, "action_dim": 2, "high_hidden": 8, "low_hidden": 16}
+SIZES = {"obs_dim": 4, "action_dim": 2, "backbone": BackboneConfig(high_hidden=8, low_hidden=16)}
 
 
 def _module(seed: int = 0, **kw) -> CSP:
@@ -193,11 +195,11 @@ def test_critic_values_are_the_mean_q_of_the_mixed_policys_action():
     alphas = torch.tensor([[1.0, 0.0], [0.3, 0.7], [0.0, 1.0]])
     values = m.critic_values(alphas, batch, chunk=2)
     assert values.shape == (3,) and len(set(values.tolist())) == 3
-    x = HBC.high_input(batch["observation"], batch["position"], batch["goal"])
+    x = high_input(batch["observation"], batch["position"], batch["goal"])
     with torch.no_grad():
         for alpha, value in zip(alphas, values, strict=True):
             offset, _ = m.policies["high"](x, alpha)
-            action, _ = m.policies["low"](HBC.low_input(batch["observation"], offset), alpha)
+            action, _ = m.policies["low"](low_input(batch["observation"], offset), alpha)
             q = m.critic.q(x, action, alpha.expand(9, 2))
             torch.testing.assert_close(value, q.mean())
     # a point of the pruned subspace is valued as the grown one's with a 0 weight

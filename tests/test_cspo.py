@@ -17,15 +17,16 @@ import hispo_pl.modules.hispo as hispo_mod
 from hispo_pl.callbacks import AnchorExtension, SubspacePruning
 from hispo_pl.callbacks.subspace import SearchResult
 from hispo_pl.cli import main
-from hispo_pl.loop import load_module_state
+from hispo_pl.config import BackboneConfig
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.cspo import CSPO
 from hispo_pl.modules.hbc import HBC, GoalConditionedBC
 from hispo_pl.modules.hispo import HiSPO, SubspacePolicy, training_alphas
+from hispo_pl.nn.hierarchy import high_input, low_input
 from hispo_pl.nn.mlp import gaussian_nll
 
 ROOT = Path(__file__).resolve().parents[1]
-SIZES = {"obs_dim": 4, "action_dim": 2, "high_hidden": 8, "low_hidden": 16}
+SIZES = {"obs_dim": 4, "action_dim": 2, "backbone": BackboneConfig(high_hidden=8, low_hidden=16)}
 LEVELS = ("high", "low")
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -33,7 +34,7 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 
 def _module(seed: int = 0, **kw) -> CSPO:
     torch.manual_seed(seed)
-    return CSPO(**SIZES, **kw)
+    return CSPO(**{**SIZES, **kw})
 
 
 def _batch(n: int = 12, seed: int = 0) -> dict[str, torch.Tensor]:
@@ -69,9 +70,9 @@ def _manual_act(module: HiSPO, alpha: torch.Tensor, seed: int = 3) -> torch.Tens
     b = _batch(7, seed)
     with torch.no_grad():
         offset, _ = module.policies["high"](
-            HBC.high_input(b["observation"], b["position"], b["goal"]), alpha
+            high_input(b["observation"], b["position"], b["goal"]), alpha
         )
-        action, _ = module.policies["low"](HBC.low_input(b["observation"], offset), alpha)
+        action, _ = module.policies["low"](low_input(b["observation"], offset), alpha)
     return action
 
 
@@ -173,7 +174,7 @@ def test_one_weight_draw_per_step_shared_by_both_levels(monkeypatch):
         return alphas
 
     monkeypatch.setattr(hispo_mod, "training_alphas", recording)
-    m = _module(dropout=0.0, alpha_groups=3)
+    m = _module(backbone=BackboneConfig(high_hidden=8, low_hidden=16, dropout=0.0), alpha_groups=3)
     m.add_anchor("policy")
     _perturb_newest(m)
     with torch.no_grad():
@@ -183,7 +184,7 @@ def test_one_weight_draw_per_step_shared_by_both_levels(monkeypatch):
     assert len(seen) == 1 and seen[0].shape == (3, 2)  # one draw (3 groups) for both levels
     alphas = seen[0]
     for level in LEVELS:
-        x, target = m._io(level, batch)
+        x, target = m.policies.inputs(level, batch)
         mean, log_std = m.policies[level](x.reshape(3, 4, -1), alphas)
         expected = gaussian_nll(mean.reshape(12, -1), log_std.reshape(12, -1), target)
         torch.testing.assert_close(out[f"loss_{level}"], expected)
@@ -230,7 +231,7 @@ def test_score_alphas_matches_a_manual_sum_of_squared_errors():
     expected = 0.0
     with torch.no_grad():
         for level in LEVELS:
-            x, target = m._io(level, batch)
+            x, target = m.policies.inputs(level, batch)
             mean, _ = m.policies[level](x, alpha)
             expected = expected + (mean - target).pow(2).sum(-1).mean()
     torch.testing.assert_close(m.score_alphas("policy", alpha[None], batch)[0], expected)
@@ -276,7 +277,7 @@ def test_checkpoint_round_trip_acts_identically_on_every_task(tmp_path):
     raw = torch.load(path, map_location="cpu", weights_only=True)
     assert raw["hispo_pl_class"] == "hispo_pl.modules.cspo.CSPO"
     fresh = _module(seed=99)  # one anchor pair: the structure comes from the file
-    load_module_state(fresh, path)
+    fresh.load_checkpoint_file(path)
     for loaded in (fresh, GoalConditionedBC.from_checkpoint_file(str(path))):
         assert type(loaded) is CSPO and loaded.task_index == 2
         assert loaded.n_anchors("policy") == 3

@@ -12,6 +12,7 @@ import torch
 from lightning.pytorch.loggers import Logger
 from torch.utils.data import DataLoader
 
+from hispo_pl.config import BackboneConfig
 from hispo_pl.modules import BC, CSPO, HBC, HiLOW, HiSPO
 from hispo_pl.nn import fast
 from hispo_pl.nn.mlp import ResidualMLP
@@ -206,7 +207,7 @@ def test_fast_path_logs_what_the_reference_logs(every):
     rows = []
     for reference in (False, True):
         torch.manual_seed(0)
-        module, recorder = HBC(4, 2, dropout=0.0), _Recorder()
+        module, recorder = HBC(4, 2, backbone=BackboneConfig(dropout=0.0)), _Recorder()
         trainer = L.Trainer(
             max_steps=len(batches),
             logger=recorder,

@@ -13,6 +13,7 @@ from helpers import quiet_trainer
 
 from hispo_pl.callbacks import AnchorExtension, DirichletEvaluation, SubspacePruning
 from hispo_pl.callbacks.subspace import window_start
+from hispo_pl.config import BackboneConfig, OptimConfig
 from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.data.datasets import EpisodeArrays
 from hispo_pl.data.sampler import HERConfig, HERSampler
@@ -94,7 +95,8 @@ def test_window_start_and_the_budget_rule():
 def test_decisions_record_heldout_and_train_losses_and_warn_when_decided_by_budget(tmp_path):
     stream = ["pointmaze-umaze-N[3]", "pointmaze-umaze-IA[3]"]
     torch.manual_seed(0)
-    module = HiSPO(obs_dim=4, action_dim=2, high_hidden=8, low_hidden=16, lr=3e-3)
+    backbone, optim = BackboneConfig(high_hidden=8, low_hidden=16), OptimConfig(lr=3e-3)
+    module = HiSPO(obs_dim=4, action_dim=2, backbone=backbone, optim=optim)
     search = DirichletEvaluation(n_candidates=16, n_batches=2, convergence_window=0.5)
     for task in range(2):
         module.task_index = task

@@ -10,7 +10,7 @@ import torch.nn.functional as F
 from helpers import quiet_trainer
 from torch.utils.data import DataLoader
 
-from hispo_pl.loop import load_module_state
+from hispo_pl.config import BackboneConfig
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.hbc import GoalConditionedBC
 from hispo_pl.modules.hilow import HiLOW
@@ -24,7 +24,7 @@ from hispo_pl.nn.subspace import (
 )
 
 IN, OUT, RANK, K, M, B = 12, 10, 3, 4, 5, 7
-SIZES = {"obs_dim": 4, "action_dim": 2, "high_hidden": 8, "low_hidden": 16}
+SIZES = {"obs_dim": 4, "action_dim": 2, "backbone": BackboneConfig(high_hidden=8, low_hidden=16)}
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -253,7 +253,7 @@ def test_a_new_anchor_of_the_module_is_the_first_one(name):
     m.add_anchor(name)
     _perturb_newest(m, name)  # anchor 2 away from θ_1
     m.add_anchor(name)  # anchor 3: θ_1 again (zero offset, copied biases and affines)
-    x, _ = m._io(name, _batch(10))
+    x, _ = m.policies.inputs(name, _batch(10))
     e = torch.eye(3)
     first, second, third = (m.policies[name](x, e[k])[0] for k in range(3))
     torch.testing.assert_close(third, first)
@@ -360,7 +360,7 @@ def test_checkpoint_round_trip_restores_every_task(tmp_path):
     assert raw["hispo_pl_class"] == "hispo_pl.modules.hilow.HiLOW"
     assert raw["hyper_parameters"]["rank"] == RANK
     fresh = _module(seed=99)
-    load_module_state(fresh, path)
+    fresh.load_checkpoint_file(path)
     for loaded in (fresh, GoalConditionedBC.from_checkpoint_file(str(path))):
         assert type(loaded) is HiLOW and loaded.task_index == 2
         assert (loaded.n_anchors("high"), loaded.n_anchors("low")) == (4, 2)

@@ -11,19 +11,19 @@ from helpers import quiet_trainer
 from torch.utils.data import DataLoader
 
 import hispo_pl.modules.hispo as hispo_mod
-from hispo_pl.loop import load_module_state
-from hispo_pl.modules.hbc import HBC
+from hispo_pl.config import BackboneConfig
 from hispo_pl.modules.hispo import SUBSPACES, HiSPO, SubspacePolicy, training_alphas
+from hispo_pl.nn.hierarchy import high_input, low_input
 from hispo_pl.nn.mlp import gaussian_nll
 
-SIZES = {"obs_dim": 4, "action_dim": 2, "high_hidden": 8, "low_hidden": 16}
+SIZES = {"obs_dim": 4, "action_dim": 2, "backbone": BackboneConfig(high_hidden=8, low_hidden=16)}
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _module(seed: int = 0, **kw) -> HiSPO:
     torch.manual_seed(seed)
-    return HiSPO(**SIZES, **kw)
+    return HiSPO(**{**SIZES, **kw})
 
 
 def _batch(n: int = 12, seed: int = 0) -> dict[str, torch.Tensor]:
@@ -252,7 +252,7 @@ def test_score_alphas_matches_a_manual_mse(name):
     m = _module()
     m.eval()
     batch = _batch(9)
-    x, target = m._io(name, batch)
+    x, target = m.policies.inputs(name, batch)
     mean, _ = m.policies[name](x, torch.ones(1))
     expected = (mean - target).pow(2).sum(-1).mean()
     torch.testing.assert_close(m.score_alphas(name, torch.ones(1, 1), batch)[0], expected)
@@ -289,7 +289,7 @@ def test_batched_scoring_equals_single_candidates():
 def test_score_alphas_is_deterministic_in_training_mode():
     """The search's comparisons must not depend on dropout masks: scoring predicts
     deterministically even when the module is left in training mode."""
-    m = _module(dropout=0.5)
+    m = _module(backbone=BackboneConfig(high_hidden=8, low_hidden=16, dropout=0.5))
     m.add_anchor("high")
     _perturb_newest(m, "high")
     m.train()
@@ -321,9 +321,9 @@ def _manual_act(m: HiSPO, alphas: dict[str, torch.Tensor], seed: int = 3) -> tor
     b = _batch(7, seed)
     with torch.no_grad():
         offset, _ = m.policies["high"](
-            HBC.high_input(b["observation"], b["position"], b["goal"]), alphas["high"]
+            high_input(b["observation"], b["position"], b["goal"]), alphas["high"]
         )
-        action, _ = m.policies["low"](HBC.low_input(b["observation"], offset), alphas["low"])
+        action, _ = m.policies["low"](low_input(b["observation"], offset), alphas["low"])
     return action
 
 
@@ -382,7 +382,11 @@ def test_grouped_forward_with_indivisible_batch(monkeypatch, batch_size, groups)
 
 
 def test_grouped_forward_without_noise_equals_a_plain_forward():
-    m = _module(alpha_groups=4, alpha_noise=0.0, dropout=0.0)
+    m = _module(
+        alpha_groups=4,
+        alpha_noise=0.0,
+        backbone=BackboneConfig(high_hidden=8, low_hidden=16, dropout=0.0),
+    )
     for name in SUBSPACES:
         m.add_anchor(name)
         _perturb_newest(m, name)
@@ -391,7 +395,7 @@ def test_grouped_forward_without_noise_equals_a_plain_forward():
     batch = _batch(18)  # 18 is not divisible by 4: 3 groups of 6
     out = m.losses(batch)
     for name in SUBSPACES:
-        x, target = m._io(name, batch)
+        x, target = m.policies.inputs(name, batch)
         alpha = torch.softmax(2 * torch.tanh(m.scores[name].detach()), -1)
         mean, log_std = m.policies[name](x, alpha)
         torch.testing.assert_close(out[f"loss_{name}"], gaussian_nll(mean, log_std, target))
@@ -444,7 +448,7 @@ def test_checkpoint_round_trip_restores_structure_and_every_task(tmp_path):
 
     fresh = _module(seed=99)
     assert fresh.n_anchors("high") == fresh.n_anchors("low") == 1
-    load_module_state(fresh, path)
+    fresh.load_checkpoint_file(path)
     assert fresh.task_index == 2
     for name in SUBSPACES:
         assert fresh.n_anchors(name) == m.n_anchors(name)
@@ -458,7 +462,7 @@ def test_checkpoint_round_trip_restores_structure_and_every_task(tmp_path):
         assert torch.equal(_act(fresh, task), _act(m, task)), task
 
     classmethod_loaded = HiSPO.load_from_checkpoint(path, map_location="cpu")
-    assert classmethod_loaded.hparams.high_hidden == SIZES["high_hidden"]
+    assert classmethod_loaded.backbone_config == SIZES["backbone"]
     assert classmethod_loaded.task_index == 2
     for task in (0, 1, 2):
         assert torch.equal(_act(classmethod_loaded, task), _act(m, task)), task
@@ -471,7 +475,7 @@ def test_load_into_a_larger_module_shrinks_it(tmp_path):
     big = _module(seed=1)
     for _ in range(4):
         big.add_anchor("low")
-    load_module_state(big, path)
+    big.load_checkpoint_file(path)
     assert (big.n_anchors("high"), big.n_anchors("low")) == (3, 2)
     for task in (0, 1, 2):
         assert torch.equal(_act(big, task), _act(m, task))
@@ -483,7 +487,7 @@ def test_anchors_added_later_leave_a_finished_task_bit_identical(seed):
     a single bit (BWT exactly 0). Mixing the zero-weighted anchors too changes the rounding of
     the sum (7e-7 here), enough to flip a rollout of a 600-step episode."""
     torch.manual_seed(seed)
-    m = HiSPO(4, 2, high_log_std=0.0).eval()  # the method config's widths
+    m = HiSPO(4, 2, backbone=BackboneConfig(high_log_std=0.0)).eval()  # the method config's widths
     for name in SUBSPACES:
         m.set_task_alpha(0, name, torch.ones(1))
         m.add_anchor(name)

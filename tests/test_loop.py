@@ -18,13 +18,15 @@ from hispo_pl.callbacks import (
     RolloutEvaluation,
     SubspacePruning,
 )
+from hispo_pl.config import BackboneConfig
 from hispo_pl.data.datamodule import TaskDataModule
-from hispo_pl.loop import PROGRESS_FILE, RESULTS_FILE, ContinualLoop, checkpoint_path
+from hispo_pl.loop import ContinualLoop
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.hispo import SUBSPACES, HiSPO
+from hispo_pl.rundir import RunDir
 
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-IA[3]", "pointmaze-umaze-PO[3]"]
-SIZES = {"obs_dim": 4, "action_dim": 2, "high_hidden": 8, "low_hidden": 16}
+SIZES = {"obs_dim": 4, "action_dim": 2, "backbone": BackboneConfig(high_hidden=8, low_hidden=16)}
 SEED = 0
 COMPARED = ("stream", "R", "PER", "BWT", "stored_bytes", "anchors", "alphas", "table")
 
@@ -77,17 +79,17 @@ def uninterrupted(tiny_umaze, tmp_path_factory, one_thread):
 
 def test_results_and_checkpoints_are_written(uninterrupted):
     run_dir, results = uninterrupted["dir"], uninterrupted["results"]
-    on_disk = json.loads((run_dir / RESULTS_FILE).read_text())
+    on_disk = json.loads((run_dir / RunDir.RESULTS).read_text())
     assert on_disk == results
     for key in ("stream", "R", "PER", "BWT", "stored_bytes", "anchors", "alphas", "wall_time_s"):
         assert key in results, key
     assert "FWT" not in results and "MEM" not in results  # no baselines given
     assert results["stream"] == STREAM
     for k in range(3):
-        assert checkpoint_path(run_dir, k).name == f"task_{k + 1:02d}.ckpt"
-        assert checkpoint_path(run_dir, k).exists()
-    assert not checkpoint_path(run_dir, 3).exists()
-    progress = json.loads((run_dir / PROGRESS_FILE).read_text())
+        assert RunDir(run_dir).checkpoint(k).name == f"task_{k + 1:02d}.ckpt"
+        assert RunDir(run_dir).checkpoint(k).exists()
+    assert not RunDir(run_dir).checkpoint(3).exists()
+    progress = json.loads((run_dir / RunDir.PROGRESS).read_text())
     assert progress["stream"] == STREAM
     assert progress["rows"] == results["R"]
     assert len(progress["wall_time_s"]) == 3 and all(t > 0 for t in progress["wall_time_s"])
@@ -139,9 +141,9 @@ def test_resume_after_an_interruption_reproduces_the_uninterrupted_run(uninterru
     with pytest.raises(Interrupted):
         interrupted.run()
     assert interrupted.started == [0, 1]
-    assert checkpoint_path(tmp_path, 1).exists() and not checkpoint_path(tmp_path, 2).exists()
-    assert not (tmp_path / RESULTS_FILE).exists()
-    assert len(json.loads((tmp_path / PROGRESS_FILE).read_text())["rows"]) == 2
+    assert RunDir(tmp_path).checkpoint(1).exists() and not RunDir(tmp_path).checkpoint(2).exists()
+    assert not (tmp_path / RunDir.RESULTS).exists()
+    assert len(json.loads((tmp_path / RunDir.PROGRESS).read_text())["rows"]) == 2
 
     resumed = _loop(tmp_path)  # a fresh process: new module, same seed setup
     results = resumed.run()
@@ -149,18 +151,18 @@ def test_resume_after_an_interruption_reproduces_the_uninterrupted_run(uninterru
     expected = uninterrupted["results"]
     for key in COMPARED:
         assert results[key] == expected[key], key
-    on_disk = json.loads((tmp_path / RESULTS_FILE).read_text())
+    on_disk = json.loads((tmp_path / RunDir.RESULTS).read_text())
     assert on_disk["R"] == expected["R"] and on_disk["alphas"] == expected["alphas"]
     for k in range(3):  # the same weights, bit for bit, after every task
-        a = torch.load(checkpoint_path(uninterrupted["dir"], k), weights_only=True)["state_dict"]
-        b = torch.load(checkpoint_path(tmp_path, k), weights_only=True)["state_dict"]
+        a = torch.load(RunDir(uninterrupted["dir"]).checkpoint(k), weights_only=True)["state_dict"]
+        b = torch.load(RunDir(tmp_path).checkpoint(k), weights_only=True)["state_dict"]
         assert a.keys() == b.keys()
         for name, tensor in a.items():
             assert torch.equal(b[name], tensor), (k, name)
 
 
 def test_another_stream_in_the_same_directory_is_refused(uninterrupted, tmp_path):
-    shutil.copy(uninterrupted["dir"] / PROGRESS_FILE, tmp_path / PROGRESS_FILE)
+    shutil.copy(uninterrupted["dir"] / RunDir.PROGRESS, tmp_path / RunDir.PROGRESS)
     other = ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"]
     loop = _loop(tmp_path, stream=other)
     with pytest.raises(ValueError, match=re.escape(str(tmp_path))) as err:
@@ -170,7 +172,7 @@ def test_another_stream_in_the_same_directory_is_refused(uninterrupted, tmp_path
 
 
 def test_progress_without_its_checkpoint_is_an_error(uninterrupted, tmp_path):
-    shutil.copy(uninterrupted["dir"] / PROGRESS_FILE, tmp_path / PROGRESS_FILE)
+    shutil.copy(uninterrupted["dir"] / RunDir.PROGRESS, tmp_path / RunDir.PROGRESS)
     loop = _loop(tmp_path)
     with pytest.raises(FileNotFoundError, match="task_03.ckpt is missing"):
         loop.run()

@@ -7,20 +7,28 @@ import pytest
 import torch
 from helpers import fit_tiny_stream
 
+from hispo_pl.config import BackboneConfig
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules import GoalConditionedBC
 from hispo_pl.modules.columns import NetworkPerTask
 from hispo_pl.modules.cspo import CSPO
-from hispo_pl.modules.hbc import HBC, HierarchicalNet
+from hispo_pl.modules.hbc import HBC
 from hispo_pl.modules.hilow import HiLOW
 from hispo_pl.modules.hispo import HiSPO
 from hispo_pl.modules.pnn import PNN
 from hispo_pl.modules.regularized import RegularizedFineTuning
+from hispo_pl.nn.hierarchy import HierarchicalPolicy, high_input, low_input
 from hispo_pl.nn.mlp import feature_dim
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 WIDTHS = {"high_hidden": 8, "low_hidden": 16, "dropout": 0.0}
+
+
+def _net(**kw) -> dict:
+    return {"backbone": BackboneConfig(**WIDTHS, **kw)}
+
+
 MODULES = [HBC, HiSPO, CSPO, HiLOW, PNN, NetworkPerTask, RegularizedFineTuning]
 
 
@@ -41,13 +49,13 @@ def _low_loss(module: GoalConditionedBC, batch: dict[str, torch.Tensor]) -> torc
 
 @pytest.mark.parametrize("cls", MODULES, ids=lambda c: c.__name__)
 def test_low_policy_never_reads_the_observation(cls):
-    module = cls(4, 2, low_obs=False, **WIDTHS)
+    module = cls(4, 2, **_net(low_obs=False))
     reference = module.reference_model()
-    assert isinstance(reference, HierarchicalNet)
+    assert isinstance(reference, HierarchicalPolicy)
     assert reference.low.net.inp[0].in_features == feature_dim(2)
     a, b = _low_loss(module, _batch(2)), _low_loss(module, _batch(3))
     assert torch.equal(a, b)  # other observations, same low loss
-    with_obs = cls(4, 2, **WIDTHS)  # the default still reads it
+    with_obs = cls(4, 2, **_net())  # the default still reads it
     assert not torch.equal(_low_loss(with_obs, _batch(2)), _low_loss(with_obs, _batch(3)))
     # MEM's unit shrinks with the low policy's input: one unit is one network of this backbone
     assert module_bytes(reference) < module_bytes(with_obs.reference_model())
@@ -63,12 +71,12 @@ def test_hispo_stream_without_observation_in_the_low_policy(tiny_umaze, tmp_path
     )
     assert results["BWT"] == 0.0
     module = GoalConditionedBC.from_checkpoint_file(str(run_dir / "task_02.ckpt"))
-    assert isinstance(module, HiSPO) and module.hparams.low_obs is False
+    assert isinstance(module, HiSPO) and module.backbone_config.low_obs is False
     module.eval()
     obs = torch.randn(5, 4)
     pos, goal = torch.zeros(5, 2), torch.ones(5, 2)
-    offset, _ = module.policies["high"](HBC.high_input(obs, pos, goal), module.alpha_for("high", 1))
-    low_x = HBC.low_input(obs, offset, with_obs=False)
+    offset, _ = module.policies["high"](high_input(obs, pos, goal), module.alpha_for("high", 1))
+    low_x = low_input(obs, offset, with_obs=False)
     expected, _ = module.policies["low"](low_x, module.alpha_for("low", 1))
     assert torch.equal(module.act(obs, pos, goal, task=1), expected)
 
@@ -80,7 +88,7 @@ def _with_velocity(batch: dict[str, torch.Tensor], seed: int) -> dict[str, torch
 
 @pytest.mark.parametrize("cls", MODULES, ids=lambda c: c.__name__)
 def test_goal_space_low_policy_reads_velocity_and_not_the_observation(cls):
-    module = cls(4, 2, low_obs=False, low_velocity=True, **WIDTHS)
+    module = cls(4, 2, **_net(low_obs=False, low_velocity=True))
     assert module.reference_model().low.net.inp[0].in_features == feature_dim(2) + 2
     batch = _with_velocity(_batch(2), seed=5)
     other_obs = _with_velocity(_batch(3), seed=5)
@@ -123,4 +131,4 @@ def test_hispo_stream_with_a_goal_space_low_policy(tiny_umaze, tmp_path):
     )
     assert results["BWT"] == 0.0 and len(results["R"]) == 2
     module = GoalConditionedBC.from_checkpoint_file(str(run_dir / "task_02.ckpt"))
-    assert module.hparams.low_velocity is True
+    assert module.backbone_config.low_velocity is True

@@ -9,11 +9,11 @@ import pytest
 import torch
 from helpers import fit_tiny_stream
 
-from hispo_pl.loop import load_module_state
+from hispo_pl.config import BackboneConfig
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules import GoalConditionedBC, GrowingPolicy
-from hispo_pl.modules.hbc import FlatNet, HierarchicalNet
 from hispo_pl.modules.pnn import PNN
+from hispo_pl.nn.hierarchy import HierarchicalPolicy
 from hispo_pl.nn.mlp import ResidualMLP, feature_dim
 from hispo_pl.nn.progressive import (
     ProgressiveMLP,
@@ -27,8 +27,8 @@ STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"]
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 
-def _module(**kwargs) -> PNN:
-    return PNN(4, 2, **{"high_hidden": 8, "low_hidden": 16, **kwargs})
+def _module(kind: str = "hbc") -> PNN:
+    return PNN(4, 2, backbone=BackboneConfig(kind=kind, high_hidden=8, low_hidden=16))
 
 
 def _trainable(module: torch.nn.Module) -> set[str]:
@@ -37,9 +37,9 @@ def _trainable(module: torch.nn.Module) -> set[str]:
 
 def _column_names(module: PNN, column: int) -> set[str]:
     """Parameter names of ``column`` and its laterals in both policies."""
-    prefixes = [f"{p}.net.columns.{column}." for p in ("high", "low")]
+    prefixes = [f"net.{p}.net.columns.{column}." for p in ("high", "low")]
     if column > 0:
-        prefixes += [f"{p}.net.laterals.{column - 1}." for p in ("high", "low")]
+        prefixes += [f"net.{p}.net.laterals.{column - 1}." for p in ("high", "low")]
     return {n for n, _ in module.named_parameters() if n.startswith(tuple(prefixes))}
 
 
@@ -98,9 +98,9 @@ def test_first_column_is_a_plain_residual_mlp():
 
 def test_one_column_pnn_is_the_hbc_network():
     m = _module().eval()
-    hbc = HierarchicalNet(4, 2, high_hidden=8, low_hidden=16).eval()
-    hbc.high.net.load_state_dict(m.high.net.columns[0].state_dict())
-    hbc.low.net.load_state_dict(m.low.net.columns[0].state_dict())
+    hbc = HierarchicalPolicy(BackboneConfig(high_hidden=8, low_hidden=16), 4, 2).eval()
+    hbc.high.net.load_state_dict(m.net.high.net.columns[0].state_dict())
+    hbc.low.net.load_state_dict(m.net.low.net.columns[0].state_dict())
     obs, pos, goal = _obs()
     assert torch.equal(m.act(obs, pos, goal), hbc.act(obs, pos, goal))
     ours, theirs = m.losses(_batch()), hbc.losses(_batch())
@@ -108,15 +108,15 @@ def test_one_column_pnn_is_the_hbc_network():
 
 
 def test_flat_pnn_is_flat_bc_in_columns():
-    """``backbone="bc"``: one column is the flat BC network; columns grow, freeze and keep
+    """``kind="bc"``: one column is the flat BC network; columns grow, freeze and keep
     earlier tasks' actions as in the hierarchical PNN."""
-    m = _module(backbone="bc").eval()
-    flat = FlatNet(4, 2, hidden=16).eval()
-    flat.policy.net.load_state_dict(m.policy.net.columns[0].state_dict())
+    m = _module("bc").eval()
+    flat = HierarchicalPolicy(BackboneConfig(kind="bc", low_hidden=16), 4, 2).eval()
+    flat.policy.net.load_state_dict(m.net.policy.net.columns[0].state_dict())
     obs, pos, goal = _obs()
     assert torch.equal(m.act(obs, pos, goal), flat.act(obs, pos, goal))
     assert torch.equal(m.losses(_batch())["loss"], flat.losses(_batch())["loss"])
-    assert isinstance(m.reference_model(), FlatNet)
+    assert m.reference_model().names == ("policy",)
     _run_tasks(m, range(1))
     m.eval()
     before = m.act(obs, pos, goal, task=0)
@@ -127,10 +127,10 @@ def test_flat_pnn_is_flat_bc_in_columns():
     m.start_task(2)
     trainable = _trainable(m)
     assert trainable and all(
-        n.startswith(("policy.net.columns.2.", "policy.net.laterals.1.")) for n in trainable
+        n.startswith(("net.policy.net.columns.2.", "net.policy.net.laterals.1.")) for n in trainable
     )
     with pytest.raises(ValueError, match="unknown backbone"):
-        _module(backbone="mlp")
+        _module("mlp")
 
 
 def test_new_column_starts_independent_and_laterals_then_carry_earlier_features():
@@ -165,7 +165,7 @@ def test_zero_laterals_get_gradients_and_frozen_columns_get_none():
     m.start_task(1)
     m.train()
     m.losses(_batch())["loss"].backward()
-    for policy in (m.high, m.low):
+    for policy in (m.net.high, m.net.low):
         for name in ("block_first", "block_second", "head"):
             grad = getattr(policy.net.laterals[0], name).weight.grad
             assert grad is not None and grad.abs().sum() > 0, name  # zeros do not stall
@@ -177,7 +177,7 @@ def test_zero_laterals_get_gradients_and_frozen_columns_get_none():
 
 def test_implements_the_growing_policy_protocol():
     assert isinstance(_module(), GrowingPolicy)
-    assert isinstance(_module().reference_model(), HierarchicalNet)
+    assert isinstance(_module().reference_model(), HierarchicalPolicy)
 
 
 def test_start_task_adds_one_column_and_only_it_trains():
@@ -190,7 +190,7 @@ def test_start_task_adds_one_column_and_only_it_trains():
         m.start_task(k)  # idempotent: a second setup of the same task does not grow again
         assert m.n_columns == k + 1
         assert _trainable(m) == _column_names(m, k)
-        assert len(m.high.net.laterals[k - 1].head.weight.T) == k * 8  # from every earlier
+        assert len(m.net.high.net.laterals[k - 1].head.weight.T) == k * 8  # from every earlier
         m.finish_task(k)
     assert m.task_column.tolist() == [0, 1, 2]
     with pytest.raises(ValueError, match="in stream order"):
@@ -219,7 +219,9 @@ def test_adding_columns_leaves_earlier_tasks_actions_bit_identical():
 
 def test_stored_size_grows_with_the_laterals():
     """MEM after 4 tasks at the paper's widths: 4 columns + 6 lateral sets per policy."""
-    m = PNN(4, 2, high_log_std=0.0)  # PointMaze: obs 4, action 2; 64 high / 256 low
+    m = PNN(
+        4, 2, backbone=BackboneConfig(high_log_std=0.0)
+    )  # PointMaze: obs 4, action 2; 64 high / 256 low
     unit = module_bytes(m.reference_model())
     sizes = []
     for k in range(4):
@@ -258,7 +260,7 @@ def test_checkpoint_alone_acts_identically_on_every_task(tmp_path):
 
 
 def test_flat_pnn_checkpoint_restores_its_columns(tmp_path):
-    m = _module(backbone="bc")
+    m = _module("bc")
     _run_tasks(m, range(3))
     m.eval()
     restored = GoalConditionedBC.from_checkpoint_file(str(_checkpoint(m, tmp_path / "m.ckpt")))
@@ -273,7 +275,7 @@ def test_resume_from_a_checkpoint_adds_one_column_and_freezes_the_rest(tmp_path)
     _run_tasks(m, range(2))
     path = _checkpoint(m, tmp_path / "task_02.ckpt")
     resumed = _module()
-    load_module_state(resumed, path)  # as the ContinualLoop does on a rerun
+    resumed.load_checkpoint_file(path)  # as the ContinualLoop does on a rerun
     resumed.task_index = 2
     resumed.start_task(2)
     assert resumed.n_columns == 3 and _trainable(resumed) == _column_names(resumed, 2)
@@ -302,14 +304,14 @@ def test_stream_end_to_end(tiny_umaze, tmp_path):
     # task 1's column is kept as it was; task 2 trained a new column and its laterals
     old, new = first.state_dict(), second.state_dict()
     assert all(torch.equal(old[k], new[k]) for k in old if k != "task_column")
-    assert any(p.abs().sum() > 0 for p in second.low.net.laterals[0].parameters())
+    assert any(p.abs().sum() > 0 for p in second.net.low.net.laterals[0].parameters())
     # MEM: two columns and one lateral set per policy, in units of one HBC
-    hp = second.hparams
-    assert hp.high_log_std == 0.0  # the method config fixes it: high head = goal_dim outputs
-    assert hp.low_log_std == 0.0 and not hp.low_obs and hp.low_velocity  # goal-space low
+    hp, net = second, second.backbone_config
+    assert net.high_log_std == 0.0  # the method config fixes it: high head = goal_dim outputs
+    assert net.low_log_std == 0.0 and not net.low_obs and net.low_velocity  # goal-space low
     f = feature_dim(hp.goal_dim)
-    high = (f + hp.obs_dim + 2 * hp.goal_dim, hp.high_hidden, hp.goal_dim)
-    low = (f + hp.goal_dim, hp.low_hidden, hp.action_dim)
+    high = (f + hp.obs_dim + 2 * hp.goal_dim, net.high_hidden, hp.goal_dim)
+    low = (f + hp.goal_dim, net.low_hidden, hp.action_dim)
     unit = column_parameter_count(*high) + column_parameter_count(*low)
     pair = progressive_parameter_count(2, *high) + progressive_parameter_count(2, *low)
     assert results["MEM"] > 2
@@ -323,10 +325,10 @@ def test_flat_stream_end_to_end(tiny_umaze, tmp_path):
         str(tmp_path / "pointmaze-1" / "seed0" / "task_02.ckpt")
     )
     assert isinstance(second, PNN) and second.n_columns == 2
-    hp = second.hparams
+    hp = second
     shape = (
         feature_dim(hp.goal_dim) + hp.obs_dim + 2 * hp.goal_dim,
-        hp.low_hidden,
+        hp.backbone_config.low_hidden,
         2 * hp.action_dim,
     )
     # MEM's unit is one flat BC network: two columns and one lateral set of it

@@ -9,6 +9,7 @@ import pytest
 import torch
 from helpers import fit_tiny_stream
 
+from hispo_pl.config import BackboneConfig
 from hispo_pl.modules import GoalConditionedBC, RegularizedFineTuning
 from hispo_pl.modules.regularized import empirical_fisher, flat_parameters, merge_quadratics
 
@@ -25,9 +26,8 @@ def _batch(n: int, seed: int = 0) -> dict[str, torch.Tensor]:
 
 
 def _module(penalty: str, lam: float = 1.0) -> RegularizedFineTuning:
-    return RegularizedFineTuning(
-        4, 2, penalty=penalty, penalty_lambda=lam, high_hidden=8, low_hidden=16
-    )
+    net = BackboneConfig(high_hidden=8, low_hidden=16)
+    return RegularizedFineTuning(4, 2, backbone=net, penalty=penalty, penalty_lambda=lam)
 
 
 @pytest.mark.parametrize("uniform", [False, True])

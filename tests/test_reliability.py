@@ -17,6 +17,7 @@ import torch
 from helpers import ROOT, fit_tiny_stream, tiny_stream_args
 
 from hispo_pl.cli import main
+from hispo_pl.config import BackboneConfig
 from hispo_pl.errors import TrainingDivergedError
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -24,7 +25,7 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 TINY_HISPO = """
 model:
   class_path: hispo_pl.modules.HiSPO
-  init_args: {high_hidden: 8, low_hidden: 16, high_log_std: 0.0}
+  init_args: {backbone: {high_hidden: 8, low_hidden: 16, high_log_std: 0.0}}
 trainer:
   callbacks:
     - class_path: hispo_pl.callbacks.AnchorExtension
@@ -181,12 +182,12 @@ def test_corrupt_truncated_and_unsafe_checkpoints_get_one_line(tiny_run, tmp_pat
 
 def test_nan_training_stops_with_step_and_lr_and_saves_nothing(tiny_umaze, tmp_path, capsys):
     args = tiny_stream_args(
-        "ftn", tmp_path, ["pointmaze-umaze-N[3]"], "--model.init_args.lr", "1e12"
+        "ftn", tmp_path, ["pointmaze-umaze-N[3]"], "--model.init_args.optim.lr", "1e12"
     )
     assert main(args) == 2
     err = capsys.readouterr().err
     assert "training diverged" in err and "at step" in err and "learning rate" in err
-    assert "--model.init_args.lr" in err and "Traceback" not in err
+    assert "--model.init_args.optim.lr" in err and "Traceback" not in err
     run_dir = _run_dir(tmp_path)
     assert not list(run_dir.glob("*.ckpt")) and not (run_dir / "results.json").exists()
 
@@ -196,7 +197,7 @@ def test_a_non_finite_state_is_never_saved(tmp_path):
 
     from hispo_pl.modules.hbc import HBC
 
-    module = HBC(obs_dim=4, action_dim=2, high_hidden=8, low_hidden=8)
+    module = HBC(obs_dim=4, action_dim=2, backbone=BackboneConfig(high_hidden=8, low_hidden=8))
     with torch.no_grad():
         next(module.parameters())[0] = float("nan")
     trainer = L.Trainer(logger=False, enable_checkpointing=False, enable_progress_bar=False)
@@ -214,7 +215,7 @@ def test_a_non_finite_state_is_never_saved(tmp_path):
     [
         (["--data.batch_size", "0"], "data.batch_size = 0"),
         (["--trainer.max_steps", "0"], "trainer.max_steps = 0"),
-        (["--model.init_args.dropout", "1.0"], "model.init_args.dropout = 1.0"),
+        (["--model.init_args.backbone.dropout", "1.0"], "model.init_args.backbone.dropout = 1.0"),
         (["--trainer.callbacks.init_args.episodes", "0"], "init_args.episodes = 0"),
         (["--ckpt_path", "some.ckpt"], "a stream resumes by itself"),
         (["--checkpoint_every", "-1"], "checkpoint_every = -1"),
@@ -296,9 +297,10 @@ def test_resume_with_other_settings_is_refused_naming_the_keys(tiny_run, capsys)
     args = tiny_stream_args(
         "ftn", run_dir.parents[1], ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"]
     )
-    assert main([*args, "--trainer.max_steps", "7", "--model.init_args.dropout", "0.2"]) == 2
+    dropout = "model.init_args.backbone.dropout"
+    assert main([*args, "--trainer.max_steps", "7", f"--{dropout}", "0.2"]) == 2
     err = capsys.readouterr().err
-    assert "trainer.max_steps: 5 -> 7" in err and "model.init_args.dropout: 0.1 -> 0.2" in err
+    assert "trainer.max_steps: 5 -> 7" in err and f"{dropout}: 0.1 -> 0.2" in err
     assert (run_dir / "task_01.config.yaml").read_text() == config  # each task's config kept
     assert (run_dir / "task_02.config.yaml").exists()
     # settings that do not change what is trained may differ
@@ -421,7 +423,8 @@ def test_benchmark_dry_run_validates_the_overrides(tmp_path, capsys):
     common += ["--config-dir", str(ROOT / "configs")]
     assert benchmark_main([*common, "--dry-run", "--", "--trainer.max_stepz", "5"]) == 2
     assert "max_stepz" in capsys.readouterr().err
-    assert benchmark_main([*common, "--dry-run", "--", "--model.init_args.dropout", "2"]) == 2
-    assert "model.init_args.dropout = 2" in capsys.readouterr().err
+    dropout = "--model.init_args.backbone.dropout"
+    assert benchmark_main([*common, "--dry-run", "--", dropout, "2"]) == 2
+    assert "model.init_args.backbone.dropout = 2" in capsys.readouterr().err
     assert benchmark_main([*common, "--dry-run", "--", "--trainer.max_steps", "5"]) == 0
     assert not list(tmp_path.iterdir())

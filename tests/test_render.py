@@ -11,6 +11,7 @@ from matplotlib.image import imread
 from matplotlib.patches import Rectangle
 
 from hispo_pl.cli import expand_render_tasks, main
+from hispo_pl.config import BackboneConfig
 from hispo_pl.data.tasks import FAMILIES, parse_task
 from hispo_pl.envs.videogame.layouts import layout
 from hispo_pl.render import (
@@ -190,7 +191,9 @@ def _tiny_checkpoint(path: Path) -> Path:
     from hispo_pl.modules.hbc import HBC
 
     trainer = L.Trainer(logger=False, enable_checkpointing=False, accelerator="cpu")
-    trainer.strategy.connect(HBC(obs_dim=4, action_dim=2, high_hidden=8, low_hidden=16))
+    trainer.strategy.connect(
+        HBC(obs_dim=4, action_dim=2, backbone=BackboneConfig(high_hidden=8, low_hidden=16))
+    )
     trainer.save_checkpoint(path)
     return path
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+from hispo_pl.config import BackboneConfig
 from hispo_pl.modules.hispo import HiSPO
 from hispo_pl.nn.subspace import sample_dirichlet
 from hispo_pl.search import race_candidates, resolve_precision
@@ -89,7 +90,7 @@ def test_bf16_scores_track_float32_scores():
     """Scoring in bf16 autocast changes the losses by well under the pruning tolerance (10 %),
     and ranks clearly different candidates the same way."""
     torch.manual_seed(0)
-    m = HiSPO(obs_dim=4, action_dim=2, low_hidden=64, anchor_init="random")
+    m = HiSPO(obs_dim=4, action_dim=2, backbone=BackboneConfig(low_hidden=64), anchor_init="random")
     for _ in range(2):
         m.add_anchor("low")
     g = torch.Generator().manual_seed(0)

@@ -63,7 +63,7 @@ def test_hbc_fit_and_evaluate_with_buttons(town_data, tmp_path, capsys):
     assert f"HBC on simpletown-OXO-N[{EPISODES}]: success" in capsys.readouterr().out
     (ckpt,) = tmp_path.rglob("*.ckpt")
     checkpoint = torch.load(ckpt, map_location="cpu", weights_only=True)
-    assert checkpoint["hyper_parameters"]["binary_actions"] == 6  # linked from the data
+    assert checkpoint["hyper_parameters"]["backbone"]["binary_actions"] == 6  # linked from the data
     assert checkpoint["hyper_parameters"]["goal_dim"] == 3
     assert main(["evaluate", "--ckpt", str(ckpt), "--task", "simpletown-BASE", "--episodes", "2",
                  "--json"]) == 0  # fmt: skip

@@ -11,6 +11,7 @@ import yaml
 from helpers import fit_tiny_stream
 
 from hispo_pl.callbacks import AnchorExtension, ZeroShotTransfer
+from hispo_pl.config import BackboneConfig
 from hispo_pl.modules import GoalConditionedBC, HiSPO
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,7 +72,7 @@ def test_rejected_task_trains_and_extends_as_usual(tiny_umaze, tmp_path):
 
 
 def test_one_subspace_transferred_the_other_trained():
-    m = HiSPO(4, 2, high_hidden=8, low_hidden=16)
+    m = HiSPO(4, 2, backbone=BackboneConfig(high_hidden=8, low_hidden=16))
     m.set_task_alpha(0, "high", torch.ones(1))
     m.set_task_alpha(0, "low", torch.ones(1))
     m.task_index = 1
@@ -91,7 +92,7 @@ def test_transfer_must_come_before_extension(tiny_umaze):
 
     from hispo_pl.data.datamodule import TaskDataModule
 
-    m = HiSPO(4, 2, high_hidden=8, low_hidden=16)
+    m = HiSPO(4, 2, backbone=BackboneConfig(high_hidden=8, low_hidden=16))
     trainer = L.Trainer(
         max_steps=1,
         callbacks=[AnchorExtension(), ZeroShotTransfer()],

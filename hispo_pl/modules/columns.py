@@ -28,7 +28,8 @@ from typing import Literal, Protocol, runtime_checkable
 import torch
 from torch import Tensor, nn
 
-from .hbc import Backbone, GoalConditionedBC
+from ..config import BackboneConfig, OptimConfig
+from .hbc import GoalConditionedBC
 
 Init = Literal["fresh", "previous"]
 Keep = Literal["all", "last"]
@@ -63,13 +64,11 @@ class NetworkPerTask(GoalConditionedBC):
 
     Args:
         obs_dim, action_dim, goal_dim: sizes (linked from the data by the CLI).
-        backbone: ``hbc`` (hierarchical) or ``bc`` (flat, the low width), for the BC-vs-HBC table.
+        backbone: each task's network (:class:`~hispo_pl.config.BackboneConfig`), ``hbc``
+            (hierarchical) or ``bc`` (flat), for the BC-vs-HBC table.
+        optim: Adam, restarted at every task.
         init: a task's network starts ``fresh`` (scratch) or from the ``previous`` task's.
         keep: ``all`` networks (one per task, each task acts with its own) or the ``last`` one.
-        high_hidden, low_hidden, dropout, high_log_std, low_obs, binary_actions, low_log_std,
-            low_velocity: the backbone
-            (as :class:`HBC`).
-        lr, lr_schedule: Adam, restarted at every task.
     """
 
     def __init__(
@@ -77,21 +76,12 @@ class NetworkPerTask(GoalConditionedBC):
         obs_dim: int,
         action_dim: int,
         goal_dim: int = 2,
-        backbone: Backbone = "hbc",
+        backbone: BackboneConfig = BackboneConfig(),
+        optim: OptimConfig = OptimConfig(),
         init: Init = "fresh",
         keep: Keep = "all",
-        high_hidden: int = 64,
-        low_hidden: int = 256,
-        dropout: float = 0.1,
-        high_log_std: float | None = None,
-        low_obs: bool = True,
-        lr: float = 3e-4,
-        lr_schedule: Literal["cosine", "constant"] = "cosine",
-        binary_actions: int = 0,
-        low_log_std: float | None = None,
-        low_velocity: bool = False,
     ):
-        super().__init__(lr=lr, lr_schedule=lr_schedule)
+        super().__init__(obs_dim, action_dim, goal_dim, backbone, optim)
         if init not in ("fresh", "previous"):
             raise ValueError(f"init must be 'fresh' or 'previous', got {init!r}")
         if keep not in ("all", "last"):
@@ -107,7 +97,7 @@ class NetworkPerTask(GoalConditionedBC):
     def new_network(self) -> nn.Module:
         """A freshly initialised single-task network of this method's backbone (as MEM's
         unit, :meth:`reference_model`)."""
-        return self.reference_model()
+        return self.make_policy()
 
     # --- the GrowingPolicy protocol -------------------------------------------------------
 

@@ -19,12 +19,13 @@ from typing import ClassVar, Literal, Protocol, runtime_checkable
 import torch
 from torch import Tensor, nn
 
+from ..config import BackboneConfig, OptimConfig
 from ..nn import eval_mode
 from ..nn.critic import CriticConfig, SubspaceCritic
+from ..nn.hierarchy import high_input
 from ..nn.mlp import feature_dim
 from ..nn.subspace import AnchorInit, sample_dirichlet
 from .cspo import CSPO, POLICY
-from .hbc import HBC
 from .hispo import SubspacePolicy
 
 AlphaSampling = Literal["dirichlet", "scores"]
@@ -93,20 +94,12 @@ class CSP(CSPO):
         obs_dim: int,
         action_dim: int,
         goal_dim: int = 2,
-        high_hidden: int = 64,
-        low_hidden: int = 256,
-        dropout: float = 0.1,
-        lr: float = 3e-4,
-        lr_schedule: Literal["cosine", "constant"] = "cosine",
+        backbone: BackboneConfig = BackboneConfig(),
+        optim: OptimConfig = OptimConfig(),
         anchor_init: AnchorInit = "mean",
         cosine_weight: float = 0.0,
         alpha_noise: float = 0.1,
         alpha_groups: int = 1,
-        high_log_std: float | None = None,
-        low_obs: bool = True,
-        binary_actions: int = 0,
-        low_log_std: float | None = None,
-        low_velocity: bool = False,
         alpha_sampling: AlphaSampling = "dirichlet",
         critic: dict[str, int | float] | None = None,
     ):
@@ -118,20 +111,12 @@ class CSP(CSPO):
             obs_dim,
             action_dim,
             goal_dim,
-            high_hidden,
-            low_hidden,
-            dropout,
-            lr,
-            lr_schedule,
-            anchor_init,
-            cosine_weight,
-            alpha_noise,
-            alpha_groups,
-            high_log_std,
-            low_obs,
-            binary_actions,
-            low_log_std,
-            low_velocity,
+            backbone,
+            optim,
+            anchor_init=anchor_init,
+            cosine_weight=cosine_weight,
+            alpha_noise=alpha_noise,
+            alpha_groups=alpha_groups,
         )
         self.critic_config = CriticConfig.from_dict(critic)
         self.critic = self._new_critic(self.n_anchors(POLICY))
@@ -141,13 +126,10 @@ class CSP(CSPO):
     @property
     def state_dim(self) -> int:
         """Width of the critic's state input (the high policy's inputs)."""
-        hp = self.hparams
-        return feature_dim(hp.goal_dim) + hp.obs_dim + 2 * hp.goal_dim
+        return feature_dim(self.goal_dim) + self.obs_dim + 2 * self.goal_dim
 
     def _new_critic(self, alpha_dim: int) -> SubspaceCritic:
-        return SubspaceCritic(
-            self.state_dim, self.hparams.action_dim, alpha_dim, self.critic_config.hidden
-        )
+        return SubspaceCritic(self.state_dim, self.action_dim, alpha_dim, self.critic_config.hidden)
 
     def setup(self, stage: str) -> None:
         """A fresh critic for the task about to train, over the weights of its grown subspace
@@ -186,8 +168,8 @@ class CSP(CSPO):
         out = super().losses(batch)
         out["loss_bc"] = out["loss"]
         obs, pos, goal = batch["observation"], batch["position"], batch["goal"]
-        x = HBC.high_input(obs, pos, goal)
-        next_x = HBC.high_input(batch["next_observation"], batch["next_position"], goal)
+        x = high_input(obs, pos, goal)
+        next_x = high_input(batch["next_observation"], batch["next_position"], goal)
         alpha = sample_dirichlet(len(x), self.critic.alpha_dim, device=x.device)
         critic = self.critic.goal_losses(
             x, batch["action"], alpha, next_x, batch["next_position"], goal, self.critic_config
@@ -207,7 +189,7 @@ class CSP(CSPO):
         policy = [p for p in self.parameters() if p.requires_grad and id(p) not in ids]
         groups, schedules = [], []
         steps = self.trainer.max_steps if self.trainer is not None else -1
-        cosine = self.lr_schedule == "cosine" and steps is not None and steps > 0
+        cosine = self.optim_config.schedule == "cosine" and steps is not None and steps > 0
         if policy:
             groups.append({"params": policy, "lr": self.lr})
             schedules.append(
@@ -225,15 +207,10 @@ class CSP(CSPO):
 
     def _mixed_actions(self, alphas: Tensor, batch: dict[str, Tensor]) -> Tensor:
         """Deterministic actions [M, B, A] of the policies mixed with ``alphas`` [M, K]."""
-        obs = batch["observation"]
-        high, low = self.policies["high"], self.policies["low"]
-        offset, _ = high(HBC.high_input(obs, batch["position"], batch["goal"]), alphas)
-        obs = obs.expand(len(alphas), *obs.shape)
-        velocity = batch["velocity"] if self.hparams.low_velocity else None
-        if velocity is not None:
-            velocity = velocity.expand(len(alphas), *velocity.shape)
-        mean, _ = low(HBC.low_input(obs, offset, self.hparams.low_obs, velocity), alphas)
-        return low.act(mean)
+        obs, pos, goal = batch["observation"], batch["position"], batch["goal"]
+        return self.policies.act(
+            obs, pos, goal, batch.get("velocity"), lambda name, x: self.policies[name](x, alphas)
+        )
 
     def _critic_alpha(self, alphas: Tensor) -> Tensor:
         """Weights as the critic reads them: a point of a pruned subspace is the grown one's
@@ -250,7 +227,7 @@ class CSP(CSPO):
         """``W(α) = mean_s Q(s, g, π_α(s, g), α)`` of each candidate ``alphas`` [M, K] on
         ``batch``, shape [M]: the deterministic mixed policy (eval mode) acts, the critic
         values its action."""
-        x = HBC.high_input(batch["observation"], batch["position"], batch["goal"])
+        x = high_input(batch["observation"], batch["position"], batch["goal"])
         out = []
         with eval_mode(self.policies):
             for part in alphas.split(chunk):
@@ -274,7 +251,7 @@ class CSP(CSPO):
         ``q_state_std`` the std over states of Q(s, g, a_data), and ``action_dependence``
         their ratio (near 0: the critic values states, not actions). Also the mean Q of
         each kind of action."""
-        x = HBC.high_input(batch["observation"], batch["position"], batch["goal"])
+        x = high_input(batch["observation"], batch["position"], batch["goal"])
         data = batch["action"]
         with eval_mode(self.policies):
             policy = self._mixed_actions(alpha[None], batch)[0]

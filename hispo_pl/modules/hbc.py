@@ -1,55 +1,77 @@
-"""Goal-conditioned BC policies as LightningModules: hierarchical (HBC) and flat (BC)."""
+"""Goal-conditioned BC policies as LightningModules: hierarchical (HBC) and flat (BC), and
+the plumbing every method shares."""
 
 from __future__ import annotations
 
+import inspect
 from pathlib import Path
-from typing import Literal
 
 import lightning as L
 import torch
 from torch import Tensor, nn
 
+from ..config import BackboneConfig, OptimConfig, plain, upgrade_hparams
 from ..errors import CheckpointError, TrainingDivergedError
 from ..nn import fast
-from ..nn.mlp import GaussianPolicy, feature_dim, goal_features
+from ..nn.hierarchy import HierarchicalPolicy
+from ..nn.mlp import GaussianPolicy
+from ..record import TaskRecord
 
 
 class GoalConditionedBC(L.LightningModule):
-    """Shared training plumbing: Adam, optional cosine schedule, loss dict logging.
+    """Shared training plumbing: the backbone and optimiser configs, Adam with an optional
+    cosine schedule, loss dict logging, checkpoints that rebuild the module alone.
 
     Subclasses define ``losses(batch) -> dict[str, Tensor]`` (with a ``loss`` entry) and
-    ``act(observation, position, goal) -> action`` (deterministic).
+    ``act(observation, position, goal) -> action`` (deterministic), and call
+    ``save_hyperparameters()`` in their ``__init__``.
     """
 
-    def __init__(self, lr: float = 3e-4, lr_schedule: Literal["cosine", "constant"] = "cosine"):
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int,
+        goal_dim: int = 2,
+        backbone: BackboneConfig = BackboneConfig(),
+        optim: OptimConfig = OptimConfig(),
+    ):
         super().__init__()
-        self.lr = lr
-        self.lr_schedule = lr_schedule
+        self.obs_dim, self.action_dim, self.goal_dim = obs_dim, action_dim, goal_dim
+        self.backbone_config = BackboneConfig.of(backbone)
+        self.optim_config = OptimConfig.of(optim)
         self.task_index = 0  # position in a stream, set by the ContinualLoop
         self.log_prefix = ""  # e.g. "task_03/" inside a stream, so curves of tasks do not collide
+        self.task_record = TaskRecord()  # what this task's callbacks found (not saved)
+
+    @property
+    def lr(self) -> float:
+        return self.optim_config.lr
+
+    def save_hyperparameters(self, *args, frame=None, **kwargs) -> None:
+        """Lightning's, with the configs stored as plain dicts (``weights_only=True`` loads)."""
+        super().save_hyperparameters(*args, frame=frame or inspect.currentframe().f_back, **kwargs)
+        configs = {"backbone": self.backbone_config, "optim": self.optim_config}
+        for hparams in (self._hparams, self._hparams_initial):
+            for key, config in configs.items():
+                if key in hparams:
+                    hparams[key] = plain(config)
+
+    def on_fit_start(self) -> None:
+        """A fresh :class:`~hispo_pl.record.TaskRecord` for the task about to train."""
+        self.task_record = TaskRecord()
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         raise NotImplementedError
 
-    def reference_model(self) -> nn.Module:
-        """One single-task model of this method's architecture: MEM's unit. By default the
-        backbone (``hbc`` unless a ``backbone`` hyperparameter says otherwise) built from the
-        module's own width hyperparameters."""
-        hp = self.hparams
-        return make_backbone(
-            hp.get("backbone", "hbc"),
-            hp.obs_dim,
-            hp.action_dim,
-            hp.goal_dim,
-            hp.get("high_hidden", 64),
-            hp.get("low_hidden", 256),
-            hp.get("dropout", 0.1),
-            hp.get("high_log_std"),
-            hp.get("low_obs", True),
-            hp.get("binary_actions", 0),
-            hp.get("low_log_std"),
-            hp.get("low_velocity", False),
+    def make_policy(self, head: type[GaussianPolicy] = GaussianPolicy) -> HierarchicalPolicy:
+        """A freshly initialised backbone of this module's config and sizes, built of ``head``."""
+        return HierarchicalPolicy(
+            self.backbone_config, self.obs_dim, self.action_dim, self.goal_dim, head
         )
+
+    def reference_model(self) -> nn.Module:
+        """One single-task model of this method's backbone: MEM's unit."""
+        return self.make_policy()
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         check_finite_state(checkpoint["state_dict"], self.task_index)
@@ -59,7 +81,12 @@ class GoalConditionedBC(L.LightningModule):
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         self.task_index = int(checkpoint.get("hispo_pl_task_index", 0))
+        self.upgrade_state_dict(checkpoint["state_dict"])
         self.restore_structure(checkpoint["state_dict"])
+
+    def upgrade_state_dict(self, state_dict: dict[str, Tensor]) -> None:
+        """Rename, in place, the entries of a checkpoint written by an earlier version whose
+        layout differs; the current layout has nothing to do."""
 
     def restore_structure(self, state_dict: dict[str, Tensor]) -> None:
         """Grow the module to a state dict's shape (networks, anchors, columns, per-task
@@ -69,6 +96,16 @@ class GoalConditionedBC(L.LightningModule):
         """Nothing trains until a callback makes the next task's parameters trainable."""
         for p in self.parameters():
             p.requires_grad_(False)
+
+    def load_checkpoint(self, checkpoint: dict) -> None:
+        """Take a checkpoint's state in place: structure first (anchors, columns, networks),
+        then the weights. The one loader: the loop's resume and :meth:`from_checkpoint_file`."""
+        self.on_load_checkpoint(checkpoint)
+        self.load_state_dict(checkpoint["state_dict"])
+
+    def load_checkpoint_file(self, path: str | Path) -> None:
+        """:meth:`load_checkpoint` of a file, read with ``weights_only=True``."""
+        self.load_checkpoint(read_checkpoint(path))
 
     @classmethod
     def from_checkpoint_file(cls, path: str) -> GoalConditionedBC:
@@ -99,9 +136,8 @@ class GoalConditionedBC(L.LightningModule):
         try:
             # LightningCLI adds private entries such as ``_class_path`` to the hyperparameters
             hparams = {k: v for k, v in checkpoint["hyper_parameters"].items() if k[:1] != "_"}
-            module = method(**hparams)
-            module.on_load_checkpoint(checkpoint)
-            module.load_state_dict(checkpoint["state_dict"])
+            module = method(**upgrade_hparams(hparams))
+            module.load_checkpoint(checkpoint)
         except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as err:
             raise CheckpointError(
                 f"not a readable hispo-pl checkpoint: {path} ({type(err).__name__}: "
@@ -141,7 +177,7 @@ class GoalConditionedBC(L.LightningModule):
         return (
             f"training diverged: the loss is {float(loss)} at step {step} of task "
             f"{self.task_index + 1} (learning rate {lr:g}); training stopped and nothing of "
-            "this task was saved. Lower the learning rate (--model.init_args.lr, now "
+            "this task was saved. Lower the learning rate (--model.init_args.optim.lr, now "
             f"{self.lr:g}), or check the data and the other hyperparameters."
         )
 
@@ -154,7 +190,7 @@ class GoalConditionedBC(L.LightningModule):
         if fast.enabled():
             fast.retain_freed_memory()
         steps = self.trainer.max_steps if self.trainer is not None else -1
-        if self.lr_schedule == "constant" or steps is None or steps <= 0:
+        if self.optim_config.schedule == "constant" or steps is None or steps <= 0:
             return opt
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=steps)
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
@@ -173,204 +209,13 @@ class GoalConditionedBC(L.LightningModule):
         raise NotImplementedError
 
 
-class HierarchicalNet(nn.Module):
-    """The HBC networks: a high policy over subgoal offsets and a low policy over actions.
-
-    The high policy sees [features(goal − pos), obs, pos, goal] and predicts a Gaussian over the
-    subgoal offset (subgoal − pos); the low policy sees [features(subgoal − pos), obs] (never
-    the absolute goal), or with ``low_obs=False`` only features(subgoal − pos) (never the
-    proprioceptive observation, so observation variants and absolute positions cannot reach
-    it), and predicts a Gaussian over the action (Bernoulli over its first ``binary_actions``
-    entries: gamepad buttons). Acting re-plans every step.
-    Kept apart from the LightningModule so that methods can hold several (one per task).
-    """
-
-    def __init__(
-        self,
-        obs_dim: int,
-        action_dim: int,
-        goal_dim: int = 2,
-        high_hidden: int = 64,
-        low_hidden: int = 256,
-        dropout: float = 0.1,
-        high_log_std: float | None = None,
-        low_obs: bool = True,
-        binary_actions: int = 0,
-        low_log_std: float | None = None,
-        low_velocity: bool = False,
-    ):
-        super().__init__()
-        f = feature_dim(goal_dim)
-        self.low_obs, self.low_velocity = low_obs, low_velocity
-        self.high = GaussianPolicy(
-            f + obs_dim + 2 * goal_dim, high_hidden, goal_dim, dropout, fixed_log_std=high_log_std
-        )
-        self.low = GaussianPolicy(
-            low_input_dim(obs_dim, goal_dim, low_obs, low_velocity),
-            low_hidden,
-            action_dim,
-            dropout,
-            fixed_log_std=low_log_std,
-            binary=binary_actions,
-        )
-
-    @staticmethod
-    def high_input(observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
-        return torch.cat([goal_features(goal - position), observation, position, goal], dim=-1)
-
-    @staticmethod
-    def low_input(
-        observation: Tensor,
-        subgoal_offset: Tensor,
-        with_obs: bool = True,
-        velocity: Tensor | None = None,
-    ) -> Tensor:
-        """[features(subgoal − pos), observation if ``with_obs``, ``velocity`` if given]."""
-        parts = [goal_features(subgoal_offset)]
-        if with_obs:
-            parts.append(observation)
-        if velocity is not None:
-            parts.append(velocity)
-        return torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0]
-
-    def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        return hierarchical_losses(self.high, self.low, batch, self.low_obs, self.low_velocity)
-
-    def act(
-        self, observation: Tensor, position: Tensor, goal: Tensor, velocity: Tensor | None = None
-    ) -> Tensor:
-        offset, _ = self.high(self.high_input(observation, position, goal))
-        velocity = low_velocity_input(self.low_velocity, velocity)
-        mean, _ = self.low(self.low_input(observation, offset, self.low_obs, velocity))
-        return self.low.act(mean)
-
-
-def low_input_dim(obs_dim: int, goal_dim: int, low_obs: bool, low_velocity: bool = False) -> int:
-    """Width of the low policy's input (see :meth:`HierarchicalNet.low_input`)."""
-    return feature_dim(goal_dim) + (obs_dim if low_obs else 0) + (goal_dim if low_velocity else 0)
-
-
-def low_velocity_input(wanted: bool, velocity: Tensor | None) -> Tensor | None:
-    """The velocity a low policy with ``low_velocity`` reads (None for one without)."""
-    if not wanted:
-        return None
-    if velocity is None:
-        raise ValueError(
-            "this policy's low level reads the goal-space velocity: pass velocity= to act() "
-            "(RolloutEvaluator and module_policy do)"
-        )
-    return velocity
-
-
-def hierarchical_losses(
-    high: nn.Module,
-    low: nn.Module,
-    batch: dict[str, Tensor],
-    low_obs: bool = True,
-    low_velocity: bool = False,
-) -> dict:
-    """HBC's losses for any pair of Gaussian policies called as ``policy(x) -> (mean, log_std)``:
-    the high one on the subgoal offset, the low one on the action given the true subgoal
-    (``low_obs``: whether the low policy's input holds the observation, ``low_velocity``: the
-    batch's goal-space velocity); each policy's own
-    :meth:`~hispo_pl.nn.mlp.GaussianPolicy.loss` (so button entries are Bernoulli)."""
-    obs, pos = batch["observation"], batch["position"]
-    offset = batch["subgoal"] - pos
-    velocity = batch["velocity"] if low_velocity else None
-    mean_h, log_std_h = high(HierarchicalNet.high_input(obs, pos, batch["goal"]))
-    mean_l, log_std_l = low(HierarchicalNet.low_input(obs, offset, low_obs, velocity))
-    loss_high = high.loss(mean_h, log_std_h, offset)
-    loss_low = low.loss(mean_l, log_std_l, batch["action"])
-    return {"loss": loss_high + loss_low, "loss_high": loss_high, "loss_low": loss_low}
-
-
-def flat_losses(policy: nn.Module, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-    """Flat BC's loss for any Gaussian policy called as ``policy(x) -> (mean, log_std)`` on
-    the high policy's inputs: the NLL of the data's action."""
-    x = HierarchicalNet.high_input(batch["observation"], batch["position"], batch["goal"])
-    mean, log_std = policy(x)
-    return {"loss": policy.loss(mean, log_std, batch["action"])}
-
-
-class FlatNet(nn.Module):
-    """Flat goal-conditioned BC: the high policy's inputs, one Gaussian policy over actions."""
-
-    def __init__(
-        self,
-        obs_dim: int,
-        action_dim: int,
-        goal_dim: int = 2,
-        hidden: int = 256,
-        dropout=0.1,
-        binary_actions: int = 0,
-    ):
-        super().__init__()
-        self.policy = GaussianPolicy(
-            feature_dim(goal_dim) + obs_dim + 2 * goal_dim,
-            hidden,
-            action_dim,
-            dropout,
-            binary=binary_actions,
-        )
-
-    def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        return flat_losses(self.policy, batch)
-
-    def act(
-        self, observation: Tensor, position: Tensor, goal: Tensor, velocity: Tensor | None = None
-    ) -> Tensor:
-        mean, _ = self.policy(HierarchicalNet.high_input(observation, position, goal))
-        return self.policy.act(mean)
-
-
-Backbone = Literal["hbc", "bc"]
-
-
-def make_backbone(
-    backbone: Backbone,
-    obs_dim: int,
-    action_dim: int,
-    goal_dim: int = 2,
-    high_hidden: int = 64,
-    low_hidden: int = 256,
-    dropout: float = 0.1,
-    high_log_std: float | None = None,
-    low_obs: bool = True,
-    binary_actions: int = 0,
-    low_log_std: float | None = None,
-    low_velocity: bool = False,
-) -> HierarchicalNet | FlatNet:
-    """One single-task network: hierarchical (``hbc``) or flat (``bc``, the low width)."""
-    if backbone == "hbc":
-        return HierarchicalNet(
-            obs_dim,
-            action_dim,
-            goal_dim,
-            high_hidden,
-            low_hidden,
-            dropout,
-            high_log_std,
-            low_obs,
-            binary_actions,
-            low_log_std,
-            low_velocity,
-        )
-    if backbone == "bc":
-        return FlatNet(obs_dim, action_dim, goal_dim, low_hidden, dropout, binary_actions)
-    raise ValueError(f"unknown backbone {backbone!r}; expected 'hbc' or 'bc'")
-
-
 class HBC(GoalConditionedBC):
-    """Hierarchical goal-conditioned BC on one task (:class:`HierarchicalNet`).
+    """Goal-conditioned BC on one task: one backbone network (hierarchical by default).
 
-    ``high_log_std``: a fixed log-std makes the high policy's loss a squared error on the
-    subgoal; ``None`` learns it. ``low_log_std``: the same for the low policy's action (a
-    squared error on the continuous entries). ``low_obs``: whether the low policy sees the
-    observation. ``low_velocity``: whether it sees the goal-space velocity (from consecutive
-    positions, so observation variants do not reach it; with ``low_obs=False`` the low policy
-    then works in goal space only).
-    ``binary_actions``: how many leading action entries are buttons (Bernoulli; linked from
-    the data: 6 for the video-game mazes, 0 for the mazes' continuous controls).
+    Args:
+        obs_dim, action_dim, goal_dim: sizes (linked from the data by the CLI).
+        backbone: the network (:class:`~hispo_pl.config.BackboneConfig`).
+        optim: Adam's learning rate and schedule (:class:`~hispo_pl.config.OptimConfig`).
     """
 
     def __init__(
@@ -378,23 +223,12 @@ class HBC(GoalConditionedBC):
         obs_dim: int,
         action_dim: int,
         goal_dim: int = 2,
-        high_hidden: int = 64,
-        low_hidden: int = 256,
-        dropout: float = 0.1,
-        lr: float = 3e-4,
-        lr_schedule: Literal["cosine", "constant"] = "cosine",
-        high_log_std: float | None = None,
-        low_obs: bool = True,
-        binary_actions: int = 0,
-        low_log_std: float | None = None,
-        low_velocity: bool = False,
+        backbone: BackboneConfig = BackboneConfig(),
+        optim: OptimConfig = OptimConfig(),
     ):
-        super().__init__(lr=lr, lr_schedule=lr_schedule)
+        super().__init__(obs_dim, action_dim, goal_dim, backbone, optim)
         self.save_hyperparameters()
-        self.net = self.reference_model()  # the single-task HBC its hyperparameters describe
-
-    high_input = staticmethod(HierarchicalNet.high_input)
-    low_input = staticmethod(HierarchicalNet.low_input)
+        self.net = self.make_policy()
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         return self.net.losses(batch)
@@ -411,43 +245,18 @@ class HBC(GoalConditionedBC):
         return self.net.act(observation, position, goal, velocity)
 
 
-class BC(GoalConditionedBC):
-    """Flat goal-conditioned BC (the paper's BC column) on the same network and inputs."""
+class BC(HBC):
+    """Flat goal-conditioned BC (the paper's BC column): :class:`HBC` on the flat backbone."""
 
     def __init__(
         self,
         obs_dim: int,
         action_dim: int,
         goal_dim: int = 2,
-        hidden: int = 256,
-        dropout: float = 0.1,
-        lr: float = 3e-4,
-        lr_schedule: Literal["cosine", "constant"] = "cosine",
-        binary_actions: int = 0,
+        backbone: BackboneConfig = BackboneConfig(kind="bc"),
+        optim: OptimConfig = OptimConfig(),
     ):
-        super().__init__(lr=lr, lr_schedule=lr_schedule)
-        self.save_hyperparameters()
-        self.net = self.reference_model()
-
-    def reference_model(self) -> nn.Module:
-        hp = self.hparams
-        return FlatNet(
-            hp.obs_dim, hp.action_dim, hp.goal_dim, hp.hidden, hp.dropout, hp.binary_actions
-        )
-
-    def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        return self.net.losses(batch)
-
-    @torch.no_grad()
-    def act(
-        self,
-        observation: Tensor,
-        position: Tensor,
-        goal: Tensor,
-        task: int | None = None,
-        velocity: Tensor | None = None,
-    ) -> Tensor:
-        return self.net.act(observation, position, goal, velocity)
+        super().__init__(obs_dim, action_dim, goal_dim, backbone, optim)
 
 
 def check_finite_state(state_dict: dict[str, Tensor], task_index: int = 0) -> None:
@@ -462,7 +271,7 @@ def check_finite_state(state_dict: dict[str, Tensor], task_index: int = 0) -> No
             raise TrainingDivergedError(
                 f"training diverged: {name} holds NaN or infinite values at the end of task "
                 f"{task_index + 1}; nothing was saved. Lower the learning rate "
-                "(--model.init_args.lr)."
+                "(--model.init_args.optim.lr)."
             )
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Literal
 
+from ..config import BackboneConfig, OptimConfig
 from ..nn.subspace import low_rank_
 from .hispo import HiSPO
 
@@ -53,21 +54,13 @@ class HiLOW(HiSPO):
         obs_dim: int,
         action_dim: int,
         goal_dim: int = 2,
-        high_hidden: int = 64,
-        low_hidden: int = 256,
-        dropout: float = 0.1,
-        lr: float = 3e-4,
-        lr_schedule: Literal["cosine", "constant"] = "cosine",
+        backbone: BackboneConfig = BackboneConfig(),
+        optim: OptimConfig = OptimConfig(),
         rank: int = 8,
         anchor_init: Literal["first", "random"] = "first",
         cosine_weight: float = 0.0,
         alpha_noise: float = 0.1,
         alpha_groups: int = 1,
-        high_log_std: float | None = None,
-        low_obs: bool = True,
-        binary_actions: int = 0,
-        low_log_std: float | None = None,
-        low_velocity: bool = False,
     ):
         if rank < 1:
             raise ValueError(f"HiLOW: rank must be >= 1, got {rank}")
@@ -81,20 +74,12 @@ class HiLOW(HiSPO):
             obs_dim,
             action_dim,
             goal_dim,
-            high_hidden,
-            low_hidden,
-            dropout,
-            lr,
-            lr_schedule,
-            anchor_init,
-            cosine_weight,
-            alpha_noise,
-            alpha_groups,
-            high_log_std,
-            low_obs,
-            binary_actions,
-            low_log_std,
-            low_velocity,
+            backbone,
+            optim,
+            anchor_init=anchor_init,
+            cosine_weight=cosine_weight,
+            alpha_noise=alpha_noise,
+            alpha_groups=alpha_groups,
         )
-        for policy in self.policies.values():  # θ_1 as HiSPO draws it, then low-rank anchors
+        for policy in self.policies.heads().values():  # θ_1 as HiSPO draws it, then low-rank
             low_rank_(policy.net, rank)

@@ -15,10 +15,11 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from ..config import BackboneConfig, OptimConfig
 from ..nn import eval_mode
-from ..nn.mlp import GaussianPolicy, feature_dim
+from ..nn.mlp import GaussianPolicy
 from ..nn.subspace import AnchorInit, SubspaceResidualMLP, cosine_similarity_penalty
-from .hbc import HBC, GoalConditionedBC, low_input_dim, low_velocity_input
+from .hbc import GoalConditionedBC
 
 SUBSPACES = ("high", "low")
 Precision = Literal["32", "bf16"]
@@ -67,9 +68,9 @@ class HiSPO(GoalConditionedBC):
 
     Args:
         obs_dim, action_dim, goal_dim: sizes (linked from the data by the CLI).
-        high_hidden, low_hidden: widths of the high and low policies.
-        dropout: dropout of every hidden layer.
-        lr, lr_schedule: Adam learning rate and schedule (restarted each task).
+        backbone: the network each anchor is (:class:`~hispo_pl.config.BackboneConfig`,
+            hierarchical only).
+        optim: Adam's learning rate and schedule, restarted each task.
         anchor_init: a new anchor starts as the ``mean`` of the others, ``random``, or a
             copy of the ``first``.
         cosine_weight: weight λ of the anchors' squared-cosine regulariser (0: off).
@@ -79,13 +80,6 @@ class HiSPO(GoalConditionedBC):
             would need a weight matrix per sample; ``alpha_groups`` = batch size gives exactly
             that). The default, one draw per step, keeps a step a plain forward (the fast
             training path of :mod:`hispo_pl.nn.fast`); figures in ``docs/performance.md``.
-        high_log_std: as in :class:`HBC`: a fixed log-std makes the high policy's loss a
-            squared error on the subgoal; ``None`` learns it.
-        low_obs: as in :class:`HBC`: whether the low policy sees the observation (``False``:
-            only the features of the relative subgoal).
-        binary_actions: as in :class:`HBC`: leading action entries that are buttons.
-        low_log_std: as in :class:`HBC`: a fixed log-std for the low policy (squared error).
-        low_velocity: as in :class:`HBC`: whether the low policy sees the goal-space velocity.
 
     Which policies a subspace holds is the class attribute ``subspace_policies`` (here each
     policy its own subspace; :class:`~hispo_pl.modules.cspo.CSPO` puts both in one): the
@@ -100,43 +94,18 @@ class HiSPO(GoalConditionedBC):
         obs_dim: int,
         action_dim: int,
         goal_dim: int = 2,
-        high_hidden: int = 64,
-        low_hidden: int = 256,
-        dropout: float = 0.1,
-        lr: float = 3e-4,
-        lr_schedule: Literal["cosine", "constant"] = "cosine",
+        backbone: BackboneConfig = BackboneConfig(),
+        optim: OptimConfig = OptimConfig(),
         anchor_init: AnchorInit = "mean",
         cosine_weight: float = 0.0,
         alpha_noise: float = 0.1,
         alpha_groups: int = 1,
-        high_log_std: float | None = None,
-        low_obs: bool = True,
-        binary_actions: int = 0,
-        low_log_std: float | None = None,
-        low_velocity: bool = False,
     ):
-        super().__init__(lr=lr, lr_schedule=lr_schedule)
+        super().__init__(obs_dim, action_dim, goal_dim, backbone, optim)
+        if self.backbone_config.kind != "hbc":
+            raise ValueError(f"{type(self).__name__} needs the hierarchical backbone (kind: hbc)")
         self.save_hyperparameters()
-        f = feature_dim(goal_dim)
-        self.policies = nn.ModuleDict(
-            {
-                "high": SubspaceGaussianPolicy(
-                    f + obs_dim + 2 * goal_dim,
-                    high_hidden,
-                    goal_dim,
-                    dropout,
-                    fixed_log_std=high_log_std,
-                ),
-                "low": SubspaceGaussianPolicy(
-                    low_input_dim(obs_dim, goal_dim, low_obs, low_velocity),
-                    low_hidden,
-                    action_dim,
-                    dropout,
-                    fixed_log_std=low_log_std,
-                    binary=binary_actions,
-                ),
-            }
-        )
+        self.policies = self.make_policy(SubspaceGaussianPolicy)
         if tuple(self.subspace_policies) != self.subspace_names:
             raise TypeError(f"{type(self).__name__}: subspace_names must list subspace_policies")
         names = self.subspace_names
@@ -221,7 +190,7 @@ class HiSPO(GoalConditionedBC):
         bf16 units); the losses are reduced in float32. A subspace holding several policies
         scores the sum of their losses (each policy on its own inputs and targets)."""
         names = self.subspace_policies[subspace]
-        io = {name: self._io(name, batch) for name in names}
+        io = {name: self.policies.inputs(name, batch) for name in names}
         out = []
         device = next(iter(io.values()))[0].device
         autocast = torch.autocast(device.type, torch.bfloat16, enabled=precision == "bf16")
@@ -245,15 +214,6 @@ class HiSPO(GoalConditionedBC):
 
     # --- training and acting --------------------------------------------------------------
 
-    def _io(self, policy: str, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
-        """Inputs and targets of the ``high`` or ``low`` policy (the true subgoal feeds low)."""
-        obs, pos = batch["observation"], batch["position"]
-        offset = batch["subgoal"] - pos
-        if policy == "high":
-            return HBC.high_input(obs, pos, batch["goal"]), offset
-        velocity = batch["velocity"] if self.hparams.low_velocity else None
-        return HBC.low_input(obs, offset, self.hparams.low_obs, velocity), batch["action"]
-
     def _training_alphas(self, subspace: str, batch_size: int) -> Tensor:
         """One step's anchor weights of a subspace, one row per group of the batch."""
         groups = min(self.hparams.alpha_groups, batch_size)
@@ -269,18 +229,19 @@ class HiSPO(GoalConditionedBC):
         return mean.reshape(x.shape[0], -1), log_std.reshape(x.shape[0], -1)
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        out = {}
-        for subspace, names in self.subspace_policies.items():
-            if self.transferred(subspace):  # zero-shot: its weights are fixed, nothing to train
-                continue
-            alphas = self._training_alphas(subspace, len(batch["action"]))  # shared by names
-            for name in names:
-                x, target = self._io(name, batch)
-                mean, log_std = self._grouped_forward(name, x, alphas)
-                out[f"loss_{name}"] = self.policies[name].loss(mean, log_std, target)
-        out["loss"] = sum(out[f"loss_{name}"] for name in self.policies if f"loss_{name}" in out)
+        trained = [s for s in self.subspace_names if not self.transferred(s)]  # zero-shot: fixed
+        alphas: dict[str, Tensor] = {}  # one draw per subspace, shared by its policies
+
+        def forward(name: str, x: Tensor) -> tuple[Tensor, Tensor]:
+            subspace = self.subspace_of(name)
+            if subspace not in alphas:
+                alphas[subspace] = self._training_alphas(subspace, len(batch["action"]))
+            return self._grouped_forward(name, x, alphas[subspace])
+
+        names = [n for s in trained for n in self.subspace_policies[s]]
+        out = self.policies.losses(batch, forward, names)
         if self.hparams.cosine_weight > 0:
-            reg = sum(cosine_similarity_penalty(policy) for policy in self.policies.values())
+            reg = sum(cosine_similarity_penalty(p) for p in self.policies.heads().values())
             out["cosine"] = reg
             out["loss"] = out["loss"] + self.hparams.cosine_weight * reg
         return out
@@ -304,7 +265,7 @@ class HiSPO(GoalConditionedBC):
         the policies ``subspace`` holds: the d(a, â) of the PAC criterion."""
         out = {}
         for name in self.subspace_policies[subspace]:
-            x, target = self._io(name, batch)
+            x, target = self.policies.inputs(name, batch)
             with eval_mode(self.policies[name]) as policy:
                 mean, _ = policy(x, alpha)
             out[name] = (policy.act(mean) - target).norm(dim=-1)
@@ -327,21 +288,11 @@ class HiSPO(GoalConditionedBC):
         velocity: Tensor | None = None,
     ) -> Tensor:
         task = self.task_index if task is None else task
-        offset, _ = self.policies["high"](
-            HBC.high_input(observation, position, goal),
-            self.alpha_for(self.subspace_of("high"), task),
-        )
-        low = self.policies["low"]
-        mean, _ = low(
-            HBC.low_input(
-                observation,
-                offset,
-                self.hparams.low_obs,
-                low_velocity_input(self.hparams.low_velocity, velocity),
-            ),
-            self.alpha_for(self.subspace_of("low"), task),
-        )
-        return low.act(mean)
+
+        def forward(name: str, x: Tensor) -> tuple[Tensor, Tensor]:
+            return self.policies[name](x, self.alpha_for(self.subspace_of(name), task))
+
+        return self.policies.act(observation, position, goal, velocity, forward)
 
     @property
     def n_tasks(self) -> int:

@@ -1,7 +1,7 @@
 """PNN (Progressive Neural Networks) on the HBC backbone: a new column per task for each of
 the two policies (high and low), lateral adapters from every earlier column at every layer,
 only the newest column (and its laterals) trainable. On the flat BC backbone
-(``backbone="bc"``) the one policy grows the same way.
+(``backbone.kind="bc"``) the one policy grows the same way.
 
 The module owns everything inference needs: the columns and laterals of both policies and the
 buffer mapping every finished task to the column it acts with, so a checkpoint alone acts on
@@ -15,23 +15,13 @@ for the lateral design (linear, bias-free, zero-initialised).
 
 from __future__ import annotations
 
-from typing import Literal
-
 import torch
 from torch import Tensor
 
-from ..nn.mlp import feature_dim
+from ..config import BackboneConfig, OptimConfig
 from ..nn.progressive import ProgressivePolicy
 from .columns import record_task
-from .hbc import (
-    Backbone,
-    GoalConditionedBC,
-    HierarchicalNet,
-    flat_losses,
-    hierarchical_losses,
-    low_input_dim,
-    low_velocity_input,
-)
+from .hbc import GoalConditionedBC
 
 
 class PNN(GoalConditionedBC):
@@ -40,15 +30,12 @@ class PNN(GoalConditionedBC):
 
     Args:
         obs_dim, action_dim, goal_dim: sizes (linked from the data by the CLI).
-        backbone: ``hbc`` (columns for ``high`` and ``low``) or ``bc`` (columns for one flat
-            ``policy``, ``low_hidden`` wide, on the high policy's inputs), for the BC-vs-HBC table.
-        high_hidden, low_hidden, dropout, high_log_std, low_obs, binary_actions, low_log_std,
-            low_velocity: each
-            column's, as :class:`HBC`.
-        lr, lr_schedule: Adam over the newest column and its laterals, restarted at every task.
+        backbone: each column's network (:class:`~hispo_pl.config.BackboneConfig`): ``hbc``
+            grows columns for ``high`` and ``low``, ``bc`` for one flat ``policy``.
+        optim: Adam over the newest column and its laterals, restarted at every task.
 
     Example:
-        >>> m = PNN(4, 2, high_hidden=8, low_hidden=16)
+        >>> m = PNN(4, 2, backbone=BackboneConfig(high_hidden=8, low_hidden=16))
         >>> for k in range(3):
         ...     m.start_task(k)
         ...     m.finish_task(k)
@@ -61,45 +48,12 @@ class PNN(GoalConditionedBC):
         obs_dim: int,
         action_dim: int,
         goal_dim: int = 2,
-        backbone: Backbone = "hbc",
-        high_hidden: int = 64,
-        low_hidden: int = 256,
-        dropout: float = 0.1,
-        high_log_std: float | None = None,
-        low_obs: bool = True,
-        lr: float = 3e-4,
-        lr_schedule: Literal["cosine", "constant"] = "cosine",
-        binary_actions: int = 0,
-        low_log_std: float | None = None,
-        low_velocity: bool = False,
+        backbone: BackboneConfig = BackboneConfig(),
+        optim: OptimConfig = OptimConfig(),
     ):
-        super().__init__(lr=lr, lr_schedule=lr_schedule)
+        super().__init__(obs_dim, action_dim, goal_dim, backbone, optim)
         self.save_hyperparameters()
-        f = feature_dim(goal_dim)
-        if backbone == "hbc":
-            self.high = ProgressivePolicy(
-                f + obs_dim + 2 * goal_dim,
-                high_hidden,
-                goal_dim,
-                dropout,
-                fixed_log_std=high_log_std,
-            )
-            self.low = ProgressivePolicy(
-                low_input_dim(obs_dim, goal_dim, low_obs, low_velocity),
-                low_hidden,
-                action_dim,
-                dropout,
-                fixed_log_std=low_log_std,
-                binary=binary_actions,
-            )
-            self.policy_names: tuple[str, ...] = ("high", "low")
-        elif backbone == "bc":
-            self.policy = ProgressivePolicy(
-                f + obs_dim + 2 * goal_dim, low_hidden, action_dim, dropout, binary=binary_actions
-            )
-            self.policy_names = ("policy",)
-        else:
-            raise ValueError(f"unknown backbone {backbone!r}; expected 'hbc' or 'bc'")
+        self.net = self.make_policy(ProgressivePolicy)
         # column each finished task acts with (one entry per finished task)
         self.register_buffer("task_column", torch.zeros(0, dtype=torch.long))
 
@@ -112,7 +66,7 @@ class PNN(GoalConditionedBC):
         return len(self.task_column)
 
     def _policies(self) -> tuple[ProgressivePolicy, ...]:
-        return tuple(getattr(self, name) for name in self.policy_names)
+        return tuple(self.net.heads().values())
 
     # --- the GrowingPolicy protocol -------------------------------------------------------
 
@@ -152,10 +106,7 @@ class PNN(GoalConditionedBC):
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         """The backbone's losses of the newest column (the earlier ones run without gradients)."""
-        if self.hparams.backbone == "bc":
-            return flat_losses(self.policy, batch)
-        hp = self.hparams
-        return hierarchical_losses(self.high, self.low, batch, hp.low_obs, hp.low_velocity)
+        return self.net.losses(batch)
 
     @torch.no_grad()
     def act(
@@ -167,19 +118,19 @@ class PNN(GoalConditionedBC):
         velocity: Tensor | None = None,
     ) -> Tensor:
         column = self.column_for(self.task_index if task is None else task)
-        x = HierarchicalNet.high_input(observation, position, goal)
-        if self.hparams.backbone == "bc":
-            return self.policy.act(self.policy(x, column)[0])
-        offset, _ = self.high(x, column)
-        velocity = low_velocity_input(self.hparams.low_velocity, velocity)
-        low_x = HierarchicalNet.low_input(observation, offset, self.hparams.low_obs, velocity)
-        return self.low.act(self.low(low_x, column)[0])
+        forward = lambda name, x: self.net[name](x, column)  # noqa: E731
+        return self.net.act(observation, position, goal, velocity, forward)
 
     # --- checkpoints ----------------------------------------------------------------------
 
+    def upgrade_state_dict(self, state_dict: dict[str, Tensor]) -> None:
+        """Checkpoints of earlier versions held the heads at the top (``high.``, ``policy.``)."""
+        for key in [k for k in state_dict if k.split(".")[0] in ("high", "low", "policy")]:
+            state_dict[f"net.{key}"] = state_dict.pop(key)
+
     def restore_structure(self, state_dict: dict[str, Tensor]) -> None:
         """As many columns and mapped tasks as the state dict holds, before it loads."""
-        prefix = f"{self.policy_names[0]}.net.columns."
+        prefix = f"net.{self.net.names[0]}.net.columns."
         columns = {int(k[len(prefix) :].split(".")[0]) for k in state_dict if k.startswith(prefix)}
         while self.n_columns < len(columns):
             for policy in self._policies():

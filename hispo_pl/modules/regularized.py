@@ -17,8 +17,8 @@ import torch
 from torch import Tensor, nn
 from torch.func import functional_call, grad, vmap
 
+from ..config import BackboneConfig, OptimConfig
 from .columns import NetworkPerTask
-from .hbc import Backbone
 
 Penalty = Literal["l2", "ewc"]
 
@@ -117,40 +117,14 @@ class RegularizedFineTuning(NetworkPerTask):
         obs_dim: int,
         action_dim: int,
         goal_dim: int = 2,
+        backbone: BackboneConfig = BackboneConfig(),
+        optim: OptimConfig = OptimConfig(),
         penalty: Penalty = "ewc",
         penalty_lambda: float = 1.0,
-        backbone: Backbone = "hbc",
-        high_hidden: int = 64,
-        low_hidden: int = 256,
-        dropout: float = 0.1,
-        high_log_std: float | None = None,
-        low_obs: bool = True,
-        lr: float = 3e-4,
-        lr_schedule: Literal["cosine", "constant"] = "cosine",
-        binary_actions: int = 0,
-        low_log_std: float | None = None,
-        low_velocity: bool = False,
     ):
         if penalty not in ("l2", "ewc"):
             raise ValueError(f"penalty must be 'l2' or 'ewc', got {penalty!r}")
-        super().__init__(
-            obs_dim,
-            action_dim,
-            goal_dim,
-            backbone=backbone,
-            init="previous",
-            keep="last",
-            high_hidden=high_hidden,
-            low_hidden=low_hidden,
-            dropout=dropout,
-            high_log_std=high_log_std,
-            low_obs=low_obs,
-            lr=lr,
-            lr_schedule=lr_schedule,
-            binary_actions=binary_actions,
-            low_log_std=low_log_std,
-            low_velocity=low_velocity,
-        )
+        super().__init__(obs_dim, action_dim, goal_dim, backbone, optim, "previous", "last")
         self.save_hyperparameters()
         self.remove_ignored_hparams(["init", "keep"])  # fixed here, not arguments
         self.register_buffer("penalty_importance", torch.zeros(0))  # A: [] before task 1 ends

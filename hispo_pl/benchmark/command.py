@@ -1,0 +1,269 @@
+"""``hispo-pl benchmark``: the command line, tying planning, launching and reporting."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from ..io import atomic_write_text
+from .configs import datasets_needed, prepare_datasets
+from .launch import Reporter, run_env, run_local, run_ray
+from .plan import (
+    FIT_MODULE,
+    PLAN_FILE,
+    known_methods,
+    parse_seeds,
+    pending_runs,
+    plan_runs,
+    select_methods,
+    stream_config_path,
+)
+from .records import export_runs
+from .report import embed_reports, write_report
+
+
+def _cpu_count() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="hispo-pl benchmark",
+        usage="hispo-pl benchmark --stream STREAM --out OUT [options] [-- fit overrides...]",
+        description=(
+            "Run every (method, seed) of a stream as a `hispo-pl fit` subprocess logging to\n"
+            "OUT/runs/<method>/seed<S>/ (resumable: runs with a results.json are skipped,\n"
+            "interrupted ones resume), then write OUT/table.md and table.csv (PER, BWT, FWT\n"
+            "x100 and MEM, mean ± std over seeds), runtime.csv and perf_vs_memory.png.\n"
+            "Arguments after `--` are passed to every `hispo-pl fit`."
+        ),
+        epilog=(
+            "examples:\n"
+            "  hispo-pl benchmark --stream pointmaze-1 --methods all --seeds 3 "
+            "--out results/pointmaze-1\n"
+            "  hispo-pl benchmark --stream pointmaze-2 --methods hispo,scn --seeds 0,4 "
+            "--out results/pm2 -- --data.batch_size 512\n"
+            "  hispo-pl benchmark --stream pointmaze-1 --methods all --seeds 3 --out "
+            "results/pointmaze-1 --launcher ray --address auto\n"
+            "  hispo-pl benchmark --out results/pointmaze-1 --report-only"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "--stream", help="stream name (CONFIG_DIR/streams/<name>.yaml) or a YAML path"
+    )
+    parser.add_argument(
+        "--methods",
+        default="all",
+        help="'all' (every CONFIG_DIR/methods/*.yaml, sorted) or a comma list (default: all)",
+    )
+    parser.add_argument(
+        "--seeds",
+        default="3",
+        help="a count N (seeds 0..N-1) or a comma list such as 0,4 (default: 3)",
+    )
+    parser.add_argument("--out", help="output folder (runs/, tables, figure)")
+    parser.add_argument(
+        "--steps-per-task",
+        type=int,
+        default=None,
+        help="gradient steps per task (--trainer.max_steps); default: the stream config's own "
+        "value (6000 in configs/streams/pointmaze-*.yaml; the paper's is 100000)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="local: runs at a time (default: CPU cores // threads, at least 1); ray with "
+        "--address local: the private instance gets workers x threads CPUs",
+    )
+    parser.add_argument(
+        "--num-threads",
+        type=int,
+        default=1,
+        help="torch threads (and Ray CPUs) per run (default: 1)",
+    )
+    parser.add_argument(
+        "--launcher",
+        choices=("local", "ray"),
+        default="local",
+        help="local: parallel processes on this machine (default); ray: one Ray remote task "
+        "per run",
+    )
+    parser.add_argument(
+        "--address",
+        default=None,
+        help="ray: 'local' (a private instance), 'auto' (the running cluster) or "
+        "ray://host:10001; default: RAY_ADDRESS, else a local instance",
+    )
+    parser.add_argument(
+        "--config-dir",
+        default="configs",
+        help="where streams/ and methods/ live (default: configs)",
+    )
+    parser.add_argument(
+        "--dry-run", action="store_true", help="print the planned fit commands; run nothing"
+    )
+    parser.add_argument(
+        "--report-only",
+        action="store_true",
+        help="only rebuild the tables and figure in OUT from the finished runs",
+    )
+    parser.add_argument(
+        "--docs",
+        metavar="PAGE",
+        default=None,
+        help="with --report-only: rebuild every report embedded in a documentation page "
+        "(e.g. docs/results.md) from its committed run files",
+    )
+    parser.add_argument(
+        "--export",
+        metavar="DEST",
+        default=None,
+        help="copy every finished run's small files (results, decisions, config) to "
+        "DEST/<method>/seed<S>/ and write the report there (e.g. docs/results/pointmaze-1)",
+    )
+    return parser
+
+
+def _split_extra(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    argv = list(argv)
+    if "--" in argv:
+        i = argv.index("--")
+        return argv[:i], argv[i + 1 :]
+    return argv, []
+
+
+def _print_report(out: Path, stream: str | None) -> None:
+    for path in write_report(out, stream):
+        print(f"[benchmark] wrote {path}")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    own, extra = _split_extra(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    args = parser.parse_args(own)
+    if args.report_only and args.docs:
+        Path(args.docs).write_text(embed_reports(Path(args.docs)))
+        print(f"[benchmark] rebuilt the reports embedded in {args.docs}")
+        return 0
+    if not args.out:
+        parser.error("--out is required (unless --report-only --docs PAGE)")
+    out = Path(args.out)
+    if args.report_only:
+        try:
+            if args.export:
+                copied = export_runs(out, Path(args.export))
+                print(f"[benchmark] exported {len(copied)} files to {args.export}")
+                out = Path(args.export)
+            _print_report(out, args.stream)
+        except FileNotFoundError as e:
+            parser.error(str(e))
+        return 0
+    if not args.stream:
+        parser.error("--stream is required (unless --report-only)")
+    if args.num_threads < 1 or (args.workers is not None and args.workers < 1):
+        parser.error("--num-threads and --workers must be >= 1")
+    if args.address is not None and args.launcher != "ray":
+        parser.error("--address is for --launcher ray")
+    config_dir = Path(args.config_dir)
+    if not (config_dir / "methods").is_dir():
+        parser.error(
+            f"no {config_dir / 'methods'}: run from the repository root or pass --config-dir"
+        )
+    try:
+        stream_config = stream_config_path(args.stream, config_dir)
+        methods = select_methods(args.methods, known_methods(config_dir))
+        seeds = parse_seeds(args.seeds)
+    except (ValueError, FileNotFoundError) as e:
+        parser.error(str(e))
+    workers = args.workers or max(1, _cpu_count() // args.num_threads)
+    runs = plan_runs(
+        stream_config,
+        config_dir,
+        methods,
+        seeds,
+        out,
+        args.num_threads,
+        args.steps_per_task,
+        extra,
+    )
+    if args.dry_run:
+        from ..cli import check_fit_args
+
+        problems = 0
+        checked: dict[str, str | None] = {}
+        for run in runs:
+            state = "done" if run.results_path.exists() else "to run"
+            print(f"[benchmark] {run.name} ({state}): {shlex.join(run.command(sys.executable))}")
+            if run.method not in checked:  # seeds differ only in the seed and run dir
+                checked[run.method] = check_fit_args(list(run.argv[len(FIT_MODULE) :]))
+            if checked[run.method] is not None:
+                problems += 1
+                print(f"[benchmark] {run.name}: invalid: {checked[run.method]}", file=sys.stderr)
+        return 2 if problems else 0
+    out.mkdir(parents=True, exist_ok=True)
+    stream_name = stream_config.stem
+    plan = {
+        "stream": stream_name,
+        "stream_config": str(stream_config),
+        "methods": methods,
+        "seeds": seeds,
+        "steps_per_task": args.steps_per_task,
+        "extra": extra,
+    }
+    atomic_write_text(out / PLAN_FILE, json.dumps(plan, indent=1))
+
+    todo = pending_runs(runs, stream_name)
+    print(
+        f"[benchmark] {len(runs)} runs ({len(methods)} methods x {len(seeds)} seeds), "
+        f"{len(todo)} to run with the {args.launcher} launcher, {args.num_threads} thread(s) "
+        "each" + (f", {workers} at a time" if args.launcher == "local" else "")
+    )
+    needed: dict[str, int] = {}
+    for run in todo:
+        for name, episodes in datasets_needed(run.configs, run.argv).items():
+            needed[name] = max(needed.get(name, 0), episodes)
+    prepare_datasets(needed)
+    reporter = Reporter(total=len(runs), done=len(runs) - len(todo))
+    env = run_env(args.num_threads)
+    try:
+        if todo and args.launcher == "local":
+            run_local(todo, workers, reporter, env)
+        elif todo:
+            run_ray(
+                todo,
+                args.num_threads,
+                reporter,
+                args.address,
+                workers * args.num_threads if args.workers else None,
+                env,
+            )
+    except KeyboardInterrupt:
+        reporter.close()
+        print("[benchmark] interrupted: rerun the same command to resume")
+        return 130
+    reporter.close()
+    try:
+        if args.export:
+            copied = export_runs(out, Path(args.export))
+            print(f"[benchmark] exported {len(copied)} files to {args.export}")
+            _print_report(Path(args.export), stream_name)
+        _print_report(out, stream_name)
+    except FileNotFoundError as e:
+        print(f"[benchmark] no tables: {e}")
+    if reporter.failed:
+        print(
+            f"[benchmark] {len(reporter.failed)} run(s) failed: "
+            + ", ".join(f"{r.name} ({r.log_path})" for r in reporter.failed)
+        )
+        return 1
+    return 0

@@ -1,0 +1,208 @@
+"""Planning a benchmark: which methods and seeds, the ``fit`` command of each run, and which
+runs are still to do. Pure functions, apart from the run records ``pending_runs`` writes."""
+
+from __future__ import annotations
+
+import shlex
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..rundir import RunDir
+from .configs import configured_max_steps
+
+PLAN_FILE = "benchmark.json"
+RUNS_DIR = "runs"
+FIT_MODULE = ("-m", "hispo_pl.cli")  # run with the worker's own interpreter
+
+
+def known_methods(config_dir: Path) -> list[str]:
+    """Method names: the stems of ``config_dir/methods/*.yaml``, sorted."""
+    return sorted(p.stem for p in (Path(config_dir) / "methods").glob("*.yaml"))
+
+
+def select_methods(spec: str, known: Sequence[str]) -> list[str]:
+    """``all`` → every known method; ``a,b`` → those, in that order (duplicates dropped).
+
+    Raises:
+        ValueError: an unknown name (the message lists the known ones) or an empty list.
+    """
+    if spec.strip() == "all":
+        chosen = list(known)
+    else:
+        chosen = list(dict.fromkeys(m.strip() for m in spec.split(",") if m.strip()))
+    unknown = [m for m in chosen if m not in known]
+    if unknown:
+        raise ValueError(
+            f"unknown method(s) {', '.join(unknown)}; known (configs/methods/*.yaml): "
+            f"{', '.join(known) or 'none'}"
+        )
+    if not chosen:
+        raise ValueError(f"no methods selected; known: {', '.join(known) or 'none'}")
+    return chosen
+
+
+def parse_seeds(spec: str) -> list[int]:
+    """``3`` → seeds 0, 1, 2; ``0,4`` (any comma) → exactly those seeds.
+
+    Raises:
+        ValueError: not integers, negative, repeated, or zero seeds.
+    """
+    parts = [p.strip() for p in spec.split(",") if p.strip()]
+    try:
+        values = [int(p) for p in parts]
+    except ValueError:
+        raise ValueError(f"--seeds takes a count (3) or a comma list (0,4), got {spec!r}") from None
+    if "," not in spec:
+        if len(values) != 1 or values[0] < 1:
+            raise ValueError(f"--seeds as a count must be >= 1, got {spec!r}")
+        return list(range(values[0]))
+    if not values or min(values) < 0 or len(set(values)) != len(values):
+        raise ValueError(f"--seeds as a list needs distinct non-negative seeds, got {spec!r}")
+    return values
+
+
+def stream_config_path(stream: str, config_dir: Path) -> Path:
+    """``pointmaze-1`` → ``config_dir/streams/pointmaze-1.yaml``; a path to a YAML file is
+    taken as is.
+
+    Raises:
+        FileNotFoundError: neither exists (the message lists the known streams).
+    """
+    as_path = Path(stream)
+    if as_path.suffix in (".yaml", ".yml") and as_path.is_file():
+        return as_path.resolve()
+    path = Path(config_dir) / "streams" / f"{stream}.yaml"
+    if not path.is_file():
+        known = sorted(p.stem for p in (Path(config_dir) / "streams").glob("*.yaml"))
+        raise FileNotFoundError(
+            f"no stream config {path}; known streams: {', '.join(known) or 'none'} "
+            "(or pass a YAML path; --config-dir sets where configs live)"
+        )
+    return path.resolve()
+
+
+def fit_argv(
+    stream_config: Path,
+    method_config: Path,
+    method: str,
+    seed: int,
+    out: Path,
+    num_threads: int = 1,
+    steps_per_task: int | None = None,
+    extra: Sequence[str] = (),
+) -> list[str]:
+    """The ``hispo-pl fit`` arguments of one run (after ``python -m hispo_pl.cli``).
+
+    The run logs to ``out/runs/<method>/seed<seed>``; Lightning's progress bar is off (the
+    output goes to a log file); ``extra`` comes last, so it overrides everything before it.
+    """
+    argv = [
+        "fit",
+        "--config",
+        str(stream_config),
+        "--config",
+        str(method_config),
+        "--seed_everything",
+        str(seed),
+        "--num_threads",
+        str(num_threads),
+    ]
+    if steps_per_task is not None:
+        argv += ["--trainer.max_steps", str(steps_per_task)]
+    argv += [
+        "--trainer.logger.init_args.save_dir",
+        str(Path(out) / RUNS_DIR),
+        "--trainer.logger.init_args.name",
+        method,
+        "--trainer.logger.init_args.version",
+        f"seed{seed}",
+        "--trainer.enable_progress_bar",
+        "false",
+    ]
+    return argv + list(extra)
+
+
+@dataclass(frozen=True)
+class PlannedRun:
+    """One (method, seed) of a benchmark and the command that produces it."""
+
+    method: str
+    seed: int
+    run_dir: Path
+    argv: tuple[str, ...]  # the arguments after the interpreter: -m hispo_pl.cli fit ...
+    steps_per_task: int | None = None
+    configs: tuple[Path, ...] = ()  # the stream and method configs in argv, in order
+
+    @property
+    def name(self) -> str:
+        return f"{self.method}/seed{self.seed}"
+
+    @property
+    def results_path(self) -> Path:
+        return RunDir(self.run_dir).results_file
+
+    @property
+    def log_path(self) -> Path:
+        return RunDir(self.run_dir).fit_log
+
+    def command(self, python: str = "python") -> list[str]:
+        return [python, *self.argv]
+
+
+def plan_runs(
+    stream_config: Path,
+    config_dir: Path,
+    methods: Sequence[str],
+    seeds: Sequence[int],
+    out: Path,
+    num_threads: int = 1,
+    steps_per_task: int | None = None,
+    extra: Sequence[str] = (),
+) -> list[PlannedRun]:
+    """One run per (method, seed), methods outer, with absolute paths in every command (a
+    worker may start elsewhere)."""
+    out = Path(out).resolve()
+    runs = []
+    for method in methods:
+        method_config = (Path(config_dir) / "methods" / f"{method}.yaml").resolve()
+        for seed in seeds:
+            args = fit_argv(
+                stream_config, method_config, method, seed, out, num_threads, steps_per_task, extra
+            )
+            configs = (Path(stream_config), method_config)
+            steps = configured_max_steps(configs, args)
+            run_dir = out / RUNS_DIR / method / f"seed{seed}"
+            runs.append(PlannedRun(method, seed, run_dir, (*FIT_MODULE, *args), steps, configs))
+    return runs
+
+
+def pending_runs(runs: Sequence[PlannedRun], stream: str) -> list[PlannedRun]:
+    """The runs without a ``results.json`` (new or interrupted), each with a fresh
+    ``run.json`` (method, seed, budget, command); prints a line for each skipped or resumed
+    run, noting when its command changed since the first launch."""
+    todo = []
+    for run in runs:
+        run_dir = RunDir(run.run_dir)
+        old = run_dir.read_run_record() if run_dir.run_record_file.exists() else None
+        changed = old is not None and old.get("argv") != list(run.argv)
+        if run_dir.has_results():
+            note = " (it was launched with another command)" if changed else ""
+            print(f"[benchmark] {run.name}: skipped, {RunDir.RESULTS} exists{note}")
+            continue
+        if run_dir.progress_file.exists():
+            note = "; note: the command differs from its first launch" if changed else ""
+            print(f"[benchmark] {run.name}: resuming an interrupted run{note}")
+        run.run_dir.mkdir(parents=True, exist_ok=True)
+        meta = {
+            "method": run.method,
+            "seed": run.seed,
+            "stream": stream,
+            "steps_per_task": run.steps_per_task,
+            "argv": list(run.argv),
+            "command": shlex.join(run.command(sys.executable)),
+        }
+        run_dir.write_run_record(meta)
+        todo.append(run)
+    return todo

@@ -1,0 +1,179 @@
+"""Finished runs as found on disk, and their aggregation: FWT against the from-scratch run
+of the same seed, mean ± std over seeds per method."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..metrics import continual_metrics
+from ..rundir import RunDir
+from .plan import PLAN_FILE, RUNS_DIR
+
+
+@dataclass
+class RunRecord:
+    """A finished run as found on disk: its ``results.json``, its decision records and, if the
+    benchmark launched it, its ``run.json``."""
+
+    method: str
+    seed: int
+    results: dict
+    meta: dict = field(default_factory=dict)
+    decisions: list[dict] = field(default_factory=list)
+
+
+def finished_run_dirs(out: Path) -> list[Path]:
+    """Run folders with a ``results.json``: ``OUT/runs/<method>/seed<S>`` (where the benchmark
+    runs them) or ``OUT/<method>/seed<S>`` (an exported copy, e.g. under ``docs/results``)."""
+    out = Path(out)
+    found = list(out.glob(f"{RUNS_DIR}/*/seed*/{RunDir.RESULTS}"))
+    found += [p for p in out.glob(f"*/seed*/{RunDir.RESULTS}") if p.parts[-3] != RUNS_DIR]
+    return sorted(p.parent for p in found)
+
+
+def load_records(out: Path) -> list[RunRecord]:
+    """Every finished run under ``out`` (:func:`finished_run_dirs`), sorted by method then seed."""
+    records = []
+    for seed_dir in finished_run_dirs(out):
+        try:
+            seed = int(seed_dir.name.removeprefix("seed"))
+        except ValueError:
+            continue
+        run = RunDir(seed_dir)
+        meta, decisions, results = run.read_run_record(), run.read_decisions(), run.read_results()
+        records.append(RunRecord(seed_dir.parent.name, seed, results, meta, decisions))
+    return sorted(records, key=lambda r: (r.method, r.seed))
+
+
+def export_runs(out: Path, dest: Path) -> list[Path]:
+    """Copy the small files of every finished run under ``out`` (results, decisions, config,
+    run record; never checkpoints or event files) to ``dest/<method>/seed<S>/``, the layout
+    that is committed under ``docs/results/<stream>/`` and read back by ``--report-only``."""
+    written = []
+    if (Path(out) / PLAN_FILE).exists():  # the stream's name, for the report's title
+        Path(dest).mkdir(parents=True, exist_ok=True)
+        (Path(dest) / PLAN_FILE).write_bytes((Path(out) / PLAN_FILE).read_bytes())
+        written.append(Path(dest) / PLAN_FILE)
+    for seed_dir in finished_run_dirs(out):
+        target = Path(dest) / seed_dir.parent.name / seed_dir.name
+        target.mkdir(parents=True, exist_ok=True)
+        for name in RunDir.EXPORTED:
+            if (seed_dir / name).exists():
+                (target / name).write_bytes((seed_dir / name).read_bytes())
+                written.append(target / name)
+    return written
+
+
+def scratch_method_for(method: str, available: Iterable[str]) -> str | None:
+    """The from-scratch run whose R diagonal is ``method``'s FWT reference: ``scn``, else
+    ``sc1``; for flat-BC methods (``bc-*``) ``bc-scn``, else ``bc-sc1``; None if none ran."""
+    prefix = "bc-" if method.startswith("bc-") else ""
+    available = set(available)
+    for candidate in (f"{prefix}scn", f"{prefix}sc1"):
+        if candidate in available:
+            return candidate
+    return None
+
+
+def results_matrix(results: dict) -> np.ndarray:
+    """``results["R"]`` as a float array, NaN where JSON has null (above the diagonal)."""
+    return np.array(
+        [[np.nan if v is None else v for v in row] for row in results["R"]], dtype=float
+    )
+
+
+def run_metrics(results: dict, scratch_results: dict | None = None) -> dict:
+    """PER, BWT (from R), FWT (against the diagonal of ``scratch_results``'s R, when given
+    and of the same size), MEM and anchors (when the run has them). Fractions, not ×100."""
+    R = results_matrix(results)
+    scratch = None
+    if scratch_results is not None:
+        R_scratch = results_matrix(scratch_results)
+        if R_scratch.shape == R.shape:
+            scratch = np.diagonal(R_scratch)
+    out: dict = continual_metrics(R, scratch)
+    if results.get("MEM") is not None:
+        out["MEM"] = float(results["MEM"])
+    if results.get("anchors"):
+        out["anchors"] = {k: float(v) for k, v in results["anchors"].items()}
+    return out
+
+
+def mean_std(values: Sequence[float]) -> tuple[float, float]:
+    """Mean and population standard deviation (as :func:`hispo_pl.metrics.summarize_runs`)."""
+    arr = np.asarray(values, dtype=float)
+    return float(arr.mean()), float(arr.std())
+
+
+def format_mean_std(mean: float, std: float, scale: float = 100.0, digits: int = 1) -> str:
+    """``81.0 ± 1.2``: mean ± std × ``scale`` (×100 for success fractions, as the paper)."""
+    return f"{scale * mean:.{digits}f} ± {scale * std:.{digits}f}"
+
+
+@dataclass
+class MethodRow:
+    """One method's line of the table: metrics as (mean, std) over seeds, in fractions (PER,
+    BWT, FWT) or ratios (MEM, anchors); None where no seed has it."""
+
+    method: str
+    seeds: list[int]
+    PER: tuple[float, float]
+    BWT: tuple[float, float]
+    FWT: tuple[float, float] | None = None
+    MEM: tuple[float, float] | None = None
+    anchors: dict[str, tuple[float, float]] = field(default_factory=dict)
+    fwt_reference: str | None = None
+
+
+def aggregate(records: Sequence[RunRecord]) -> tuple[list[MethodRow], list[str]]:
+    """One row per method (sorted) and footnotes.
+
+    FWT of a method uses, for each seed, the R diagonal of the from-scratch run of the same
+    seed (:func:`scratch_method_for`); it is left empty, with a footnote, unless every seed of
+    the method has one.
+    """
+    by_seed: dict[int, dict[str, RunRecord]] = {}
+    for r in records:
+        by_seed.setdefault(r.seed, {})[r.method] = r
+    methods = sorted({r.method for r in records})
+    rows, notes = [], []
+    for method in methods:
+        mine = [r for r in records if r.method == method]
+        metrics, references, missing = [], set(), []
+        for r in mine:
+            ref = scratch_method_for(method, by_seed[r.seed])
+            scratch = by_seed[r.seed][ref].results if ref else None
+            m = run_metrics(r.results, scratch)
+            if "FWT" in m:
+                references.add(ref)
+            else:
+                missing.append(r.seed)
+            metrics.append(m)
+        row = MethodRow(
+            method,
+            [r.seed for r in mine],
+            mean_std([m["PER"] for m in metrics]),
+            mean_std([m["BWT"] for m in metrics]),
+        )
+        if missing:
+            prefix = "bc-" if method.startswith("bc-") else ""
+            seeds = ", ".join(str(s) for s in missing)
+            notes.append(
+                f"{method}: no FWT, no {prefix}scn or {prefix}sc1 run (with the same stream) "
+                f"for seed {seeds}"
+            )
+        else:
+            row.FWT = mean_std([m["FWT"] for m in metrics])
+            row.fwt_reference = ", ".join(sorted(references))
+        if all("MEM" in m for m in metrics):
+            row.MEM = mean_std([m["MEM"] for m in metrics])
+        names = sorted({k for m in metrics for k in m.get("anchors", {})})
+        for name in names:
+            if all(name in m.get("anchors", {}) for m in metrics):
+                row.anchors[name] = mean_std([m["anchors"][name] for m in metrics])
+        rows.append(row)
+    return rows, notes

@@ -1,0 +1,153 @@
+"""The report of a benchmark's output directory: tables, figure, unfinished runs, and the
+reports embedded in the docs."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+from ..io import atomic_write_text
+from ..rundir import RunDir
+from .plan import PLAN_FILE, RUNS_DIR
+from .records import MethodRow, aggregate, load_records
+from .tables import decisions_markdown, runtime_csv, table_csv, table_markdown
+
+
+def plot_perf_vs_memory(rows: Sequence[MethodRow], path: Path, stream: str = "") -> bool:
+    """The paper's Figure 2: MEM on x, PER on y, one marker per method with error bars over
+    seeds. Returns False (after a printed note) when matplotlib is not installed."""
+    try:
+        from matplotlib.figure import Figure  # no pyplot: no global backend state
+    except ImportError:
+        print(
+            "[benchmark] matplotlib is not installed: no perf_vs_memory.png (pip install "
+            "matplotlib, or the dev extra); the tables are written"
+        )
+        return False
+    fig = Figure(figsize=(6.0, 4.5))
+    ax = fig.add_subplot()
+    markers = "osD^vP*Xh<>p"
+    for i, row in enumerate(r for r in rows if r.MEM is not None):
+        (x, xs), (y, ys) = row.MEM, row.PER
+        ax.errorbar(
+            x,
+            100 * y,
+            xerr=xs,
+            yerr=100 * ys,
+            fmt=markers[i % len(markers)],
+            capsize=3,
+            label=row.method,
+        )
+        ax.annotate(row.method, (x, 100 * y), textcoords="offset points", xytext=(5, 5), fontsize=8)
+    ax.set_xlabel("MEM (stored size / one single-task model)")
+    ax.set_ylabel("PER (success %, mean ± std over seeds)")
+    ax.set_title(f"Performance vs memory{': ' + stream if stream else ''}")
+    ax.grid(alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=8, loc="best")
+    fig.savefig(path, dpi=150, bbox_inches="tight")
+    return True
+
+
+def unfinished_runs(out: Path) -> list[tuple[str, int, str]]:
+    """(method, seed, status) of every run the benchmark launched (it has a ``run.json``)
+    without a ``results.json``: failed (with its exit status and log), or not finished."""
+    found = []
+    for meta_path in sorted((Path(out) / RUNS_DIR).glob(f"*/seed*/{RunDir.RUN_RECORD}")):
+        seed_dir = meta_path.parent
+        run = RunDir(seed_dir)
+        if run.has_results():
+            continue
+        try:
+            meta = run.read_run_record()
+            seed = int(seed_dir.name.removeprefix("seed"))
+        except ValueError:
+            continue
+        status = meta.get("status") or "not finished (interrupted, or still running)"
+        found.append((seed_dir.parent.name, seed, status))
+    return found
+
+
+def unfinished_markdown(runs: Sequence[tuple[str, int, str]]) -> str:
+    """The table.md section listing runs without results, so a failed method is never
+    silently missing from the table."""
+    if not runs:
+        return ""
+    lines = ["", "## Runs without results", "", "| method | seed | status |", "|---|---:|---|"]
+    lines += [f"| {method} | {seed} | {status} |" for method, seed, status in runs]
+    return "\n".join(lines) + "\n"
+
+
+def write_report(out: Path, stream: str | None = None) -> list[Path]:
+    """Rebuild ``table.md``, ``table.csv``, ``runtime.csv`` and ``perf_vs_memory.png`` in
+    ``out`` from every finished run under ``out/runs``. Returns the files written.
+
+    Raises:
+        FileNotFoundError: no finished run under ``out/runs``.
+    """
+    out = Path(out)
+    records = load_records(out)
+    missing = unfinished_runs(out)
+    if not records and not missing:
+        raise FileNotFoundError(
+            f"no finished runs ({RUNS_DIR}/<method>/seed<S>/{RunDir.RESULTS}) under {out}"
+        )
+    if stream is None:
+        plan = out / PLAN_FILE
+        stream = json.loads(plan.read_text()).get("stream", "") if plan.exists() else ""
+    rows, notes = aggregate(records)
+    written = []
+    for name, text in (
+        ("table.md", table_markdown(rows, notes, stream) + unfinished_markdown(missing)),
+        ("table.csv", table_csv(rows)),
+        ("runtime.csv", runtime_csv(records)),
+    ):
+        atomic_write_text(out / name, text)
+        written.append(out / name)
+    decisions = decisions_markdown(records, stream)
+    if decisions:
+        (out / "decisions.md").write_text(decisions)
+        written.append(out / "decisions.md")
+    if plot_perf_vs_memory(rows, out / "perf_vs_memory.png", stream):
+        written.append(out / "perf_vs_memory.png")
+    return written
+
+
+EMBED_BEGIN = "<!-- report: "  # <!-- report: docs/results/pointmaze-1/table.md -->
+EMBED_END = "<!-- end report -->"
+
+
+def embed_reports(doc: Path, root: Path = Path(".")) -> str:
+    """``doc``'s text with every embedded report rebuilt: a block opened by
+    ``<!-- report: DIR/NAME -->`` and closed by ``<!-- end report -->`` gets the file ``NAME``
+    that :func:`write_report` builds from the runs under ``DIR`` (relative to ``root``), without
+    its title line. Keeps a documentation page equal to what its committed run files give."""
+    import tempfile
+
+    lines, out, i = Path(doc).read_text().splitlines(), [], 0
+    while i < len(lines):
+        line = lines[i]
+        out.append(line)
+        i += 1
+        if not line.startswith(EMBED_BEGIN):
+            continue
+        target = Path(root) / line[len(EMBED_BEGIN) :].removesuffix("-->").strip()
+        with tempfile.TemporaryDirectory() as tmp:
+            # a copy, so the committed report files are left as they are
+            for name in RunDir.EXPORTED:
+                for src in target.parent.glob(f"*/seed*/{name}"):
+                    dst = Path(tmp) / src.relative_to(target.parent)
+                    dst.parent.mkdir(parents=True, exist_ok=True)
+                    dst.write_bytes(src.read_bytes())
+            stream = (target.parent / PLAN_FILE).exists() and json.loads(
+                (target.parent / PLAN_FILE).read_text()
+            ).get("stream")
+            write_report(Path(tmp), stream or target.parent.name)
+            text = (Path(tmp) / target.name).read_text().splitlines()
+        out += [x for x in text[1:] if x or out[-1]]  # without the title, no doubled blank
+        while i < len(lines) and lines[i] != EMBED_END:
+            i += 1
+        if i == len(lines):
+            raise ValueError(f"{doc}: {line} has no closing {EMBED_END}")
+    return "\n".join(out) + "\n"

@@ -1,0 +1,118 @@
+"""The tables of a benchmark: the paper's table (Markdown and CSV), the decisions, the run
+times."""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+
+from .records import MethodRow, RunRecord, format_mean_std
+
+SCALED = ("PER", "BWT", "FWT")  # success fractions, reported ×100 like the paper
+
+
+def _cell(value: tuple[float, float] | None, scale: float, digits: int) -> str:
+    return "" if value is None else format_mean_std(*value, scale=scale, digits=digits)
+
+
+def table_markdown(rows: Sequence[MethodRow], notes: Sequence[str], stream: str = "") -> str:
+    """The paper's table: PER, BWT, FWT ×100 and MEM as mean ± std over seeds, anchors."""
+    title = f"# Benchmark{': ' + stream if stream else ''}\n\n"
+    lines = [
+        "| method | seeds | PER | BWT | FWT | MEM | anchors |",
+        "|---|---:|---:|---:|---:|---:|---|",
+    ]
+    for row in rows:
+        anchors = ", ".join(f"{k} {_cell(v, 1, 1)}" for k, v in row.anchors.items())
+        fwt = _cell(row.FWT, 100, 1) + ("" if row.FWT is not None or not notes else " ¹")
+        lines.append(
+            f"| {row.method} | {len(row.seeds)} | {_cell(row.PER, 100, 1)} | "
+            f"{_cell(row.BWT, 100, 1)} | {fwt.strip()} | {_cell(row.MEM, 1, 2)} | {anchors} |"
+        )
+    legend = (
+        "\nPER, BWT, FWT: success ×100, mean ± std (population) over seeds; MEM: stored size "
+        "over one single-task model; anchors: per subspace. FWT is measured against the R "
+        "diagonal of the from-scratch run of the same seed (scn, else sc1; bc-scn, else bc-sc1 "
+        "for bc- methods).\n"
+    )
+    footnotes = "".join(f"\n¹ {note}" for note in notes)
+    return title + "\n".join(lines) + "\n" + legend + footnotes + ("\n" if notes else "")
+
+
+def table_csv(rows: Sequence[MethodRow]) -> str:
+    """Machine-readable table: ``<metric>_mean`` and ``<metric>_std`` columns (PER, BWT, FWT
+    ×100; MEM and anchors as ratios / counts), empty where unknown."""
+    anchor_names = sorted({k for row in rows for k in row.anchors})
+    header = ["method", "seeds"]
+    for name in [*SCALED, "MEM", *(f"anchors_{a}" for a in anchor_names)]:
+        header += [f"{name}_mean", f"{name}_std"]
+    header.append("fwt_reference")
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(header)
+    for row in rows:
+        cells: list = [row.method, len(row.seeds)]
+        values = [row.PER, row.BWT, row.FWT, row.MEM, *(row.anchors.get(a) for a in anchor_names)]
+        scales = [100, 100, 100, 1] + [1] * len(anchor_names)
+        for value, scale in zip(values, scales, strict=True):
+            cells += ["", ""] if value is None else [round(scale * v, 4) for v in value]
+        cells.append(row.fwt_reference or "")
+        writer.writerow(cells)
+    return buf.getvalue()
+
+
+def _loss(value: float | None) -> str:
+    return "" if value is None else f"{value:.4f}"
+
+
+def decisions_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
+    """Every keep / prune decision of every run: the losses the rule compared (held-out), the
+    same points on training episodes, and how much ``L_curr`` still fell over the last steps
+    of the task (the convergence diagnostic; above ε the budget decided)."""
+    lines = [
+        f"# Decisions{': ' + stream if stream else ''}\n",
+        "| method | seed | task | subspace | L_prev | L_curr | L_prev / L_curr | ε | "
+        "train L_prev / L_curr | convergence | decision | anchors |",
+        "|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---|---:|",
+    ]
+    for r in records:
+        for d in r.decisions:
+            if d.get("decision") not in ("first", "keep", "prune") or d.get("rule") == "critic":
+                continue  # zero-shot records carry no losses; CSP decides by its critic
+            ratio = d["l_prev"] / d["l_curr"] if d.get("l_prev") is not None else None
+            train = (
+                d["l_prev_train"] / d["l_curr_train"]
+                if d.get("l_prev_train") is not None and d.get("l_curr_train")
+                else None
+            )
+            conv = d.get("improvement")
+            lines.append(
+                f"| {r.method} | {r.seed} | {d['task'] + 1} | {d['subspace']} | "
+                f"{_loss(d.get('l_prev'))} | {_loss(d['l_curr'])} | "
+                f"{'' if ratio is None else f'{ratio:.3f}'} | {d.get('eps', '')} | "
+                f"{'' if train is None else f'{train:.3f}'} | "
+                f"{'' if conv is None else f'{conv:+.1%}'} | {d['decision']} | {d['anchors']} |"
+            )
+    if len(lines) == 3:
+        return ""
+    legend = (
+        "\nLosses: squared error of the deterministic prediction on the task's held-out "
+        "episodes (train: on its training episodes). The rule prunes iff L_prev / L_curr ≤ "
+        "1 + ε. Convergence: relative fall of L_curr over the last 20 % of the task's steps. "
+        "CSP's critic decisions (W, not losses) are in its decisions.jsonl (docs/csp.md).\n"
+    )
+    return "\n".join(lines) + "\n" + legend
+
+
+def runtime_csv(records: Sequence[RunRecord]) -> str:
+    """One line per run: method, seed, wall minutes (sum of the tasks' ``wall_time_s``),
+    steps per task (from ``run.json``; empty for runs the benchmark did not launch)."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(["method", "seed", "minutes", "steps_per_task"])
+    for r in records:
+        minutes = sum(r.results.get("wall_time_s", [])) / 60
+        steps = r.meta.get("steps_per_task")
+        writer.writerow([r.method, r.seed, round(minutes, 3), "" if steps is None else steps])
+    return buf.getvalue()

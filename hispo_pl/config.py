@@ -1,0 +1,148 @@
+"""Typed configs shared by every method: the backbone network and the optimiser.
+
+A method takes them as ``backbone`` and ``optim`` (``--model.init_args.backbone.low_hidden 128``,
+``--model.init_args.optim.lr 1e-3``) and stores them in its hyperparameters as plain dicts, so
+a checkpoint still loads with ``weights_only=True``. Checkpoints and run fingerprints written
+before these configs existed kept every field flat; :func:`upgrade_hparams` and
+:func:`upgrade_fingerprint` read them. No torch here: reports and scripts import it freely.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields
+from typing import Literal
+
+BackboneKind = Literal["hbc", "bc"]
+Schedule = Literal["cosine", "constant"]
+
+
+@dataclass(frozen=True)
+class BackboneConfig:
+    """The single-task network that every method parameterises in its own way (one per task,
+    a subspace of anchors, progressive columns, low-rank offsets).
+
+    Attributes:
+        kind: ``hbc``, a high policy over subgoal offsets and a low one over actions; or ``bc``,
+            one flat policy over actions on the high policy's inputs, ``low_hidden`` wide.
+        high_hidden: width of the high policy.
+        low_hidden: width of the low policy (of the flat policy for ``bc``).
+        dropout: dropout of every hidden layer.
+        high_log_std: a fixed log-std makes the high policy's loss a squared error on the
+            subgoal; ``None`` learns it.
+        low_log_std: the same for the low policy's action (continuous entries).
+        low_obs: whether the low policy sees the observation (``False``: only the features
+            of the relative subgoal). Linked from ``--data.low_inputs``.
+        low_velocity: whether the low policy sees the goal-space velocity. Linked from
+            ``--data.low_inputs``.
+        binary_actions: leading action entries that are buttons (Bernoulli). Linked from the
+            data.
+    """
+
+    kind: BackboneKind = "hbc"
+    high_hidden: int = 64
+    low_hidden: int = 256
+    dropout: float = 0.1
+    high_log_std: float | None = None
+    low_log_std: float | None = None
+    low_obs: bool = True
+    low_velocity: bool = False
+    binary_actions: int = 0
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("hbc", "bc"):
+            raise ValueError(f"unknown backbone kind {self.kind!r}; expected 'hbc' or 'bc'")
+
+    @classmethod
+    def of(cls, value: BackboneConfig | Mapping | None) -> BackboneConfig:
+        """The config itself, or one built from a dict (as checkpoints store it)."""
+        return _coerce(cls, value)
+
+
+@dataclass(frozen=True)
+class OptimConfig:
+    """Adam over a task's trainable parameters, restarted at every task.
+
+    Attributes:
+        lr: learning rate.
+        schedule: ``cosine`` anneals it over ``trainer.max_steps``; ``constant`` keeps it.
+    """
+
+    lr: float = 3e-4
+    schedule: Schedule = "cosine"
+
+    @classmethod
+    def of(cls, value: OptimConfig | Mapping | None) -> OptimConfig:
+        """The config itself, or one built from a dict (as checkpoints store it)."""
+        return _coerce(cls, value)
+
+
+def _coerce(cls, value):
+    if value is None:
+        return cls()
+    if isinstance(value, cls):
+        return value
+    if isinstance(value, Mapping):
+        return cls(**value)
+    raise TypeError(f"expected a {cls.__name__} or a dict, got {type(value).__name__}")
+
+
+def plain(config: BackboneConfig | OptimConfig) -> dict:
+    """A config as the plain dict a checkpoint's hyperparameters hold."""
+    return asdict(config)
+
+
+_BACKBONE_FIELDS = tuple(f.name for f in fields(BackboneConfig) if f.name != "kind")
+# flat hyperparameter -> (config, field), as checkpoints and fingerprints had them
+_LEGACY = {
+    **{name: ("backbone", name) for name in _BACKBONE_FIELDS},
+    "hidden": ("backbone", "low_hidden"),  # flat BC's one width
+    "lr": ("optim", "lr"),
+    "lr_schedule": ("optim", "schedule"),
+}
+
+
+def upgrade_hparams(hparams: Mapping) -> dict:
+    """A method's hyperparameters as this version takes them, from a checkpoint of any version:
+    flat fields (``low_hidden``, ``lr``, a ``backbone: bc`` string, flat BC's ``hidden``)
+    move into the ``backbone`` and ``optim`` dicts; current ones pass unchanged.
+
+    Example:
+        >>> upgrade_hparams({"obs_dim": 4, "hidden": 32, "lr": 0.1})
+        {'obs_dim': 4, 'backbone': {'kind': 'bc', 'low_hidden': 32}, 'optim': {'lr': 0.1}}
+    """
+    out: dict = {}
+    nested: dict[str, dict] = {"backbone": {}, "optim": {}}
+    for key, value in hparams.items():
+        if key in _LEGACY:
+            group, name = _LEGACY[key]
+            nested[group][name] = value
+            if key == "hidden":
+                nested["backbone"]["kind"] = "bc"
+        elif key == "backbone" and isinstance(value, str):
+            nested["backbone"]["kind"] = value
+        elif key in nested and isinstance(value, Mapping):
+            nested[key].update(value)
+        else:
+            out[key] = value
+    for group, values in nested.items():
+        if values:
+            out[group] = dict(sorted(values.items(), key=lambda kv: kv[0] != "kind"))
+    return out
+
+
+def upgrade_fingerprint(fingerprint: Mapping) -> dict:
+    """A run fingerprint (``model.init_args.lr: 0.001``...) with flat model keys renamed as
+    this version spells them (``model.init_args.optim.lr``), so that a run directory written
+    before the configs existed still resumes under the same settings."""
+    prefix = "model.init_args."
+    out = {}
+    for key, value in fingerprint.items():
+        name = key[len(prefix) :] if key.startswith(prefix) else None
+        if name in _LEGACY:
+            group, field = _LEGACY[name]
+            key = f"{prefix}{group}.{field}"
+        elif name == "backbone":
+            key = f"{prefix}backbone.kind"
+        out[key] = value
+    return out

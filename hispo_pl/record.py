@@ -1,0 +1,35 @@
+"""The per-task record: what a task's callbacks found, handed on through the module.
+
+A callback writes what it measured into ``module.task_record``; the next callback and the
+loop read it there, never another callback's attributes. The record is fresh at every fit
+and never saved: the decisions it leads to are (anchors, anchor weights, ``decisions.jsonl``,
+the rows of R in ``progress.json``). No torch here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass
+class TaskRecord:
+    """What the current task's callbacks found so far.
+
+    Attributes:
+        searches: per subspace, the task-end search's result (written by the search callback,
+            read by the pruning callback that follows it).
+        convergence_window: the share of steps over which the search measured whether
+            ``L_curr`` still fell (None: not measured).
+        evaluation: the latest rollout evaluation of the current task (``success``,
+            ``episode_length``, ``flip_rate``, ``step``), over ``episodes`` episodes.
+        episodes: episodes of that evaluation.
+        success_row: at a stream task's end, the success on every task of the stream (a row
+            of R, read by the loop).
+    """
+
+    searches: dict[str, Any] = field(default_factory=dict)
+    convergence_window: float | None = None
+    evaluation: dict[str, float] | None = None
+    episodes: int | None = None
+    success_row: list[float] | None = None

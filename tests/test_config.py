@@ -1,0 +1,82 @@
+"""The typed backbone and optimiser configs, and checkpoints written before them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from hispo_pl.config import (
+    BackboneConfig,
+    OptimConfig,
+    upgrade_fingerprint,
+    upgrade_hparams,
+)
+from hispo_pl.modules import HBC, HiSPO
+from hispo_pl.modules.hbc import GoalConditionedBC, read_checkpoint
+
+# Made by main at e51e6bb (flat hyperparameters: high_hidden, lr, a ``backbone: bc`` string,
+# flat BC's ``hidden``; PNN's heads at the top of its state dict), with each module's actions
+# on fixed inputs for the policies of its first and last task.
+LEGACY = Path(__file__).parent / "fixtures" / "legacy_checkpoints.pt"
+
+
+@pytest.mark.parametrize(
+    "name", ["hbc", "bc", "hispo", "hilow", "cspo", "pnn_hbc", "pnn_bc", "scn_bc"]
+)
+def test_a_checkpoint_of_the_previous_version_loads_and_acts_the_same(name, tmp_path):
+    fixture = torch.load(LEGACY, weights_only=True)
+    path = tmp_path / "task_02.ckpt"
+    torch.save(fixture["checkpoints"][name], path)
+    module = GoalConditionedBC.from_checkpoint_file(str(path))
+    x = fixture["inputs"]
+    for task, expected in fixture["actions"][name].items():
+        action = module.act(x["observation"], x["position"], x["goal"], task, x["velocity"])
+        torch.testing.assert_close(action, expected, rtol=0, atol=0)
+
+
+def test_the_legacy_hyperparameters_become_configs():
+    fixture = torch.load(LEGACY, weights_only=True)
+    hispo = upgrade_hparams(fixture["checkpoints"]["hispo"]["hyper_parameters"])
+    assert BackboneConfig.of(hispo["backbone"]).low_velocity is True
+    assert OptimConfig.of(hispo["optim"]) == OptimConfig(lr=1e-3, schedule="cosine")
+    bc = upgrade_hparams(fixture["checkpoints"]["bc"]["hyper_parameters"])
+    assert BackboneConfig.of(bc["backbone"]).kind == "bc" and bc["backbone"]["low_hidden"] == 16
+    assert upgrade_hparams(hispo) == hispo  # current hyperparameters pass unchanged
+
+
+def test_a_new_checkpoint_holds_plain_values(tmp_path):
+    module = HiSPO(4, 2, backbone=BackboneConfig(high_hidden=8, low_hidden=16, low_obs=False))
+    checkpoint = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams)}
+    module.on_save_checkpoint(checkpoint)
+    torch.save(checkpoint, tmp_path / "m.ckpt")
+    loaded = read_checkpoint(tmp_path / "m.ckpt")  # weights_only=True
+    assert loaded["hyper_parameters"]["backbone"]["low_obs"] is False
+    again = GoalConditionedBC.from_checkpoint_file(str(tmp_path / "m.ckpt"))
+    assert again.backbone_config == module.backbone_config
+
+
+def test_a_run_fingerprint_of_the_previous_version_matches_the_new_keys():
+    old = {
+        "model.init_args.lr": 0.001,
+        "model.init_args.low_hidden": 256,
+        "model.init_args.backbone": "bc",
+        "model.init_args.anchor_init": "mean",
+        "data.batch_size": 1024,
+    }
+    assert upgrade_fingerprint(old) == {
+        "model.init_args.optim.lr": 0.001,
+        "model.init_args.backbone.low_hidden": 256,
+        "model.init_args.backbone.kind": "bc",
+        "model.init_args.anchor_init": "mean",
+        "data.batch_size": 1024,
+    }
+
+
+def test_an_unknown_backbone_kind_is_refused():
+    with pytest.raises(ValueError, match="expected 'hbc' or 'bc'"):
+        BackboneConfig(kind="mlp")
+    with pytest.raises(ValueError, match="hierarchical backbone"):
+        HiSPO(4, 2, backbone=BackboneConfig(kind="bc"))
+    assert HBC(4, 2, backbone={"kind": "bc", "low_hidden": 8}).net.names == ("policy",)

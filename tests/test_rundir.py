@@ -1,0 +1,68 @@
+"""The run directory object: every file name and format of a run, spelled once."""
+
+from __future__ import annotations
+
+import doctest
+import json
+
+import numpy as np
+import pytest
+
+import hispo_pl.config
+import hispo_pl.nn.hierarchy
+import hispo_pl.rundir
+from hispo_pl.rundir import RunDir, task_label
+
+
+@pytest.mark.parametrize("module", [hispo_pl.rundir, hispo_pl.config, hispo_pl.nn.hierarchy])
+def test_docstring_examples_run(module):
+    failed, _ = doctest.testmod(module, optionflags=doctest.ELLIPSIS)
+    assert failed == 0
+
+
+def test_names_count_tasks_from_one(tmp_path):
+    run = RunDir(tmp_path)
+    assert task_label(0) == 1
+    assert run.checkpoint(0).name == "task_01.ckpt"
+    assert run.partial_checkpoint(11).name == "task_12.partial.ckpt"
+    assert run.task_config(2).name == "task_03.config.yaml"
+    assert run.search_file(1, "low") == tmp_path / "search" / "task_02_low.npz"
+    names = [run.progress_file, run.results_file, run.decisions_file, run.result_file]
+    assert [p.name for p in names] == [
+        "progress.json",
+        "results.json",
+        "decisions.jsonl",
+        "result.json",
+    ]
+    assert (run.lock_file.name, run.run_record_file.name) == ("run.lock", "run.json")
+
+
+def test_decisions_skip_cut_lines_and_keep_only_what_is_asked(tmp_path):
+    run = RunDir(tmp_path)
+    assert run.read_decisions() == []
+    run.append_decisions([{"task": 0, "subspace": "high"}, {"task": 1, "subspace": "high"}])
+    with open(run.decisions_file, "a") as f:
+        f.write('{"task": 2, "subs')  # a kill mid-line
+    assert [d["task"] for d in run.read_decisions()] == [0, 1]
+    run.keep_decisions(lambda d: d["task"] < 1)
+    assert run.decisions_file.read_text() == json.dumps({"task": 0, "subspace": "high"}) + "\n"
+
+
+def test_search_files_come_back_keyed_by_the_zero_based_task(tmp_path):
+    run = RunDir(tmp_path)
+    run.write_search(1, "low", alphas=np.eye(2), losses=np.array([0.5, 0.25]), l_curr=0.3)
+    ((key, arrays),) = run.read_searches().items()
+    assert key == (1, "low") and float(arrays["l_curr"]) == 0.3
+    assert np.array_equal(arrays["losses"], [0.5, 0.25])
+
+
+def test_progress_results_and_records_round_trip(tmp_path):
+    run = RunDir(tmp_path / "new")
+    assert run.read_progress() is None and run.read_run_record() == {}
+    run.path.mkdir()
+    run.write_progress({"stream": ["a"], "rows": []})
+    run.write_results({"R": [[1.0]]})
+    run.write_run_record({"method": "hispo"})
+    assert run.read_progress()["stream"] == ["a"] and run.has_results()
+    assert run.read_results() == {"R": [[1.0]]}
+    assert run.read_run_record() == {"method": "hispo"}
