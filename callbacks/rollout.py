@@ -8,7 +8,6 @@ from typing_extensions import override
 
 from ..data.tasks import Task, parse_task
 from ..evaluation import RolloutEvaluator, RolloutResult, module_policy
-from ..rundir import task_label
 
 
 class RolloutEvaluation(L.Callback):
@@ -17,8 +16,8 @@ class RolloutEvaluation(L.Callback):
     - every ``eval_every`` steps on the current task, logged as ``eval/success`` (single task)
       or ``task_XX/eval/success`` (in a stream) at the global step;
     - at the end of training on the current task, or, when the datamodule belongs to a stream,
-      on every task of the stream: ``eval/T{i:02d}/on_T{j:02d}/success`` at step i. That row
-      goes to the module's ``task_record.success_row`` for the ContinualLoop.
+      on every task of the stream. That row goes to the module's ``task_record.success_row``
+      for the ContinualLoop, which logs it (``stream/success/T01``... at step = tasks trained).
 
     The latest evaluation of the current task goes to ``task_record.evaluation`` (the CLI
     prints it).
@@ -82,10 +81,6 @@ class RolloutEvaluation(L.Callback):
         ]
         pl_module.task_record.success_row = row
         self._record(pl_module, {"success": row[i], "step": trainer.global_step})
-        if trainer.logger is not None:
-            tag = lambda k: f"T{task_label(k):02d}"  # noqa: E731
-            metrics = {f"eval/{tag(i)}/on_{tag(j)}/success": s for j, s in enumerate(row)}
-            trainer.logger.log_metrics(metrics, step=i)
 
     def _record(self, pl_module: L.LightningModule, evaluation: dict[str, float]) -> None:
         pl_module.task_record.evaluation = evaluation

@@ -21,11 +21,13 @@ STREAM_METRICS = ("PER", "BWT", "FWT", "MEM")
 
 
 def task_row_metrics(task_index: int, row: Sequence[float]) -> dict[str, float]:
-    """Success on each task trained so far after task ``task_index`` (0-based), and its mean."""
-    seen = list(row[: task_index + 1])
+    """After task ``task_index`` (0-based): the success on every task of the stream (a task's
+    curve starts with its zero-shot points, then shows what is kept or forgotten) and the mean
+    over the tasks trained so far."""
     metrics = {
-        f"stream/success/{label}": s for label, s in zip(task_labels(len(seen)), seen, strict=True)
+        f"stream/success/{label}": s for label, s in zip(task_labels(len(row)), row, strict=True)
     }
+    seen = row[: task_index + 1]
     metrics["stream/success/mean_seen"] = sum(seen) / len(seen)
     return metrics
 

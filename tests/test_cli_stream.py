@@ -56,11 +56,11 @@ def test_stream_fit_prints_metrics_logs_and_resumes(tiny_umaze, tmp_path, capsys
     acc = EventAccumulator(str(run_dir))
     acc.Reload()
     tags = set(acc.Tags()["scalars"])
-    assert {"eval/T01/on_T01/success", "eval/T02/on_T01/success", "anchors/high/count"} <= tags
+    assert {"stream/success/T01", "stream/success/T02", "anchors/high/count"} <= tags
     assert {"anchors/low/count", "task_01/train/loss", "task_02/train/loss"} <= tags
-    after_first = acc.Scalars("eval/T01/on_T01/success")
-    assert [s.step for s in after_first] == [0]
-    assert after_first[0].value == pytest.approx(results["R"][0][0])
+    first_task = acc.Scalars("stream/success/T01")  # one step convention: tasks trained
+    assert [s.step for s in first_task] == [1, 2]
+    assert first_task[0].value == pytest.approx(results["R"][0][0])
     counts = acc.Scalars("anchors/high/count")
     assert [s.step for s in counts] == [1, 2]
     assert counts[-1].value == results["anchors"]["high"]

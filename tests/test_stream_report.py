@@ -15,11 +15,12 @@ from hispo_pl.stream_report import (
 )
 
 
-def test_task_row_metrics_cover_the_tasks_seen_so_far():
-    metrics = task_row_metrics(1, [1.0, 0.5, 0.2])  # the third task is zero-shot: not a curve
+def test_task_row_metrics_cover_every_task_and_the_mean_of_those_seen():
+    metrics = task_row_metrics(1, [1.0, 0.5, 0.2])  # the third task: a zero-shot point
     assert metrics == {
         "stream/success/T01": 1.0,
         "stream/success/T02": 0.5,
+        "stream/success/T03": 0.2,
         "stream/success/mean_seen": 0.75,
     }
 
