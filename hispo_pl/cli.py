@@ -345,16 +345,18 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
     def make_trainer(k: int):
         """Task ``k``'s Trainer: the model summary once per stream, and progress as lines when
         the output is not a terminal."""
-        from .console import StepLines, interactive
+        from .console import StepLines, TaskProgressBar, interactive
 
         extra: dict = {} if first_trainer[0] else {"enable_model_summary": False}
         first_trainer[0] = False
         task_callbacks = list(callbacks)
         max_steps = config["trainer"].get("max_steps") or 0
-        if not interactive() and max_steps > 0:
-            label = f"task {k + 1}/{len(datamodule.stream)}"
+        label = f"task {k + 1}/{len(datamodule.stream)}"
+        if max_steps > 0 and not interactive():
             task_callbacks.append(StepLines(label, every=max(1, max_steps // 10)))
             extra["enable_progress_bar"] = False
+        elif max_steps > 0 and config["trainer"].get("enable_progress_bar") is not False:
+            task_callbacks.append(TaskProgressBar(label))
         return cli.instantiate_trainer(
             callbacks=task_callbacks,
             enable_checkpointing=False,

@@ -9,6 +9,7 @@ import sys
 import time
 
 import lightning as L
+from lightning.pytorch.callbacks import TQDMProgressBar
 
 # Lightning's start-of-fit notices (accelerator lines, tips) go through these loggers
 LIGHTNING_NOTICES = (
@@ -98,6 +99,32 @@ class StepLines(L.Callback):
             f"{self.label} step {step}/{trainer.max_steps} ({share:.0f} %){loss_text}, "
             f"{rate:.1f} steps/s"
         )
+
+
+class TaskProgressBar(TQDMProgressBar):
+    """One bar per task over its gradient steps (Lightning's own restarts at every epoch of
+    ``steps_per_epoch`` batches), labelled with the task: ``task 2/4: 37%|███ | 2220/6000``."""
+
+    def __init__(self, label: str, refresh_rate: int = 10):
+        super().__init__(refresh_rate=refresh_rate)
+        self.label = label
+
+    def on_train_epoch_start(self, trainer: L.Trainer, *_) -> None:
+        bar = self.train_progress_bar
+        if bar.total != trainer.max_steps:  # the task's first epoch: one bar for every step
+            bar.reset(total=trainer.max_steps)
+            bar.n = trainer.global_step
+            bar.set_description(self.label)
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        bar, step = self.train_progress_bar, trainer.global_step
+        if self._should_update(step, trainer.max_steps):
+            bar.n = step
+            bar.refresh()
+            bar.set_postfix(self.get_metrics(trainer, pl_module))
+
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self.train_progress_bar.set_postfix(self.get_metrics(trainer, pl_module))
 
 
 def interactive() -> bool:

@@ -169,3 +169,17 @@ def test_a_logger_without_a_directory_gets_the_default_run_directory(
     assert (run_dir / "results.json").exists() and (run_dir / "task_02.ckpt").exists()
     stream_scalars = {k for metrics, _ in DirlessLogger.received for k in metrics}
     assert {"stream/PER", "stream/MEM", "stream/success/T01"} <= stream_scalars
+
+
+def test_in_a_terminal_each_task_has_one_bar_over_its_steps(
+    tiny_umaze, tmp_path, monkeypatch, capsys
+):
+    import hispo_pl.console as console
+
+    monkeypatch.setattr(console, "interactive", lambda: True)
+    args = tiny_stream_args("scn", tmp_path, STREAM, "--trainer.enable_progress_bar", "true")
+    assert main(args) == 0
+    captured = capsys.readouterr()
+    bars = captured.out + captured.err
+    assert "task 2/2: 100%" in bars and "5/5" in bars
+    assert "Epoch 0" not in bars  # not Lightning's per-epoch bar
