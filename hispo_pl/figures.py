@@ -70,12 +70,19 @@ def to_triangle(weights: np.ndarray) -> np.ndarray:
     return (w / w.sum(axis=1, keepdims=True)) @ TRIANGLE
 
 
-def simplex_figure(alphas: Sequence[Sequence[float]], subspace: str) -> Figure:
-    """Each task's weights over exactly three anchors as a point in the triangle."""
+def simplex_figure(
+    alphas: Sequence[Sequence[float]],
+    subspace: str,
+    candidates: dict[int, tuple[np.ndarray, np.ndarray]] | None = None,
+) -> Figure:
+    """Each task's weights over exactly three anchors as a star in the triangle; with
+    ``candidates`` (task -> (candidate weights [m, 3], their losses [m])), the Dirichlet
+    search's candidates coloured by loss and each search's best marked."""
     weights = np.asarray(alphas, dtype=float)
     if weights.shape[1] != 3:
         raise ValueError(f"the simplex needs 3 anchors, got {weights.shape[1]}")
-    fig = Figure(figsize=(4.8, 4.4))
+    labels = task_labels(len(weights))
+    fig = Figure(figsize=(5.5, 4.8))
     ax = fig.add_subplot()
     ax.fill(*TRIANGLE.T, fill=False, edgecolor="0.3", lw=1)
     for j, (vx, vy) in enumerate(TRIANGLE):
@@ -83,14 +90,25 @@ def simplex_figure(alphas: Sequence[Sequence[float]], subspace: str) -> Figure:
         ax.annotate(
             f"anchor {j + 1}", (vx, vy), ha="center", xytext=(0, offset), textcoords="offset points"
         )
+    if candidates:
+        losses = np.concatenate([loss for _, loss in candidates.values()])
+        vmin, vmax = float(losses.min()), float(losses.max())
+        for k, (points, loss) in sorted(candidates.items()):
+            xy = to_triangle(points)
+            scatter = ax.scatter(*xy.T, c=loss, cmap="viridis", vmin=vmin, vmax=vmax, s=14)
+            best = xy[int(np.argmin(loss))]
+            ax.scatter(*best, marker="X", s=90, color="red", edgecolor="k", zorder=4,
+                       label=f"{labels[k]} best candidate (L_prev)")  # fmt: skip
+        fig.colorbar(scatter, ax=ax, shrink=0.8, label="candidate loss")
     points = to_triangle(weights)
-    for k, (px, py) in enumerate(points):
-        ax.scatter(px, py, s=60, color=f"C{k % 10}", zorder=3)
-        ax.annotate(
-            task_labels(len(points))[k], (px, py), xytext=(5, 5), textcoords="offset points"
-        )
+    ax.scatter(*points.T, marker="*", s=180, color="orange", edgecolor="k", zorder=5,
+               label="task weights")  # fmt: skip
+    for label, (px, py) in zip(labels, points, strict=True):
+        ax.annotate(label, (px, py), xytext=(6, 4), textcoords="offset points")
+    ax.set_xlim(-0.1, 1.1)
+    ax.set_ylim(-0.08, 0.95)
     ax.set_aspect("equal")
     ax.axis("off")
-    ax.set_title(f"{subspace}: anchor weights per task")
-    fig.tight_layout()
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, 0.0), ncols=2, fontsize="small")
+    ax.set_title(f"{subspace}: anchor weights per task on the simplex")
     return fig
