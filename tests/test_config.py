@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -80,3 +81,16 @@ def test_an_unknown_backbone_kind_is_refused():
     with pytest.raises(ValueError, match="hierarchical backbone"):
         HiSPO(4, 2, backbone=BackboneConfig(kind="bc"))
     assert HBC(4, 2, backbone={"kind": "bc", "low_hidden": 8}).net.names == ("policy",)
+
+
+@pytest.mark.parametrize("name", ["hispo", "pnn_hbc"])
+def test_hispo_pl_evaluate_rolls_out_a_checkpoint_of_the_previous_version(name, tmp_path, capsys):
+    from hispo_pl.cli import main
+
+    fixture = torch.load(LEGACY, weights_only=True)
+    path = tmp_path / "task_02.ckpt"
+    torch.save(fixture["checkpoints"][name], path)
+    args = ["evaluate", "--ckpt", str(path), "--task", "pointmaze-umaze", "--episodes", "2"]
+    assert main([*args, "--as-task", "1", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["as_task"] == 1 and report["episodes"] == 2 and 0 <= report["success"] <= 1

@@ -10,7 +10,8 @@ import pytest
 from matplotlib.image import imread
 from matplotlib.patches import Rectangle
 
-from hispo_pl.cli import expand_render_tasks, main
+from hispo_pl.cli import main
+from hispo_pl.commands import expand_render_tasks
 from hispo_pl.config import BackboneConfig
 from hispo_pl.data.tasks import FAMILIES, parse_task
 from hispo_pl.envs.videogame.layouts import layout

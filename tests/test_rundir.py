@@ -9,12 +9,26 @@ import numpy as np
 import pytest
 
 import hispo_pl.config
+import hispo_pl.modules.csp
+import hispo_pl.modules.cspo
+import hispo_pl.modules.hilow
+import hispo_pl.modules.pnn
 import hispo_pl.nn.hierarchy
 import hispo_pl.rundir
 from hispo_pl.rundir import RunDir, task_label
 
+DOCUMENTED = [
+    hispo_pl.rundir,
+    hispo_pl.config,
+    hispo_pl.nn.hierarchy,
+    hispo_pl.modules.pnn,
+    hispo_pl.modules.hilow,
+    hispo_pl.modules.cspo,
+    hispo_pl.modules.csp,
+]
 
-@pytest.mark.parametrize("module", [hispo_pl.rundir, hispo_pl.config, hispo_pl.nn.hierarchy])
+
+@pytest.mark.parametrize("module", DOCUMENTED, ids=lambda m: m.__name__)
 def test_docstring_examples_run(module):
     failed, _ = doctest.testmod(module, optionflags=doctest.ELLIPSIS)
     assert failed == 0

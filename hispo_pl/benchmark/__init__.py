@@ -15,15 +15,16 @@ processes. numpy only at import, so Ray workers start quickly; matplotlib and ra
 
 The package: ``plan`` (methods, seeds, commands, what is left to run), ``configs`` (settings
 read from the runs' own YAML files), ``launch`` (local processes or Ray), ``records`` (finished
-runs and their aggregation), ``tables`` and ``report`` (what is written), ``command`` (the
-command line). Every name is importable from ``hispo_pl.benchmark`` itself.
+runs and their aggregation), ``tables`` and ``report`` (what is written), ``parser`` and
+``command`` (the command line). Every name is importable from ``hispo_pl.benchmark`` itself.
 """
 
 from __future__ import annotations
 
-from .command import build_parser, main
+from .command import main
 from .configs import configured_max_steps, configured_value, datasets_needed, prepare_datasets
 from .launch import TAIL_LINES, Reporter, execute_run, record_status, run_env, run_local, run_ray
+from .parser import build_parser, cpu_count
 from .plan import (
     FIT_MODULE,
     PLAN_FILE,
@@ -75,6 +76,7 @@ __all__ = [
     "TAIL_LINES",
     "aggregate",
     "build_parser",
+    "cpu_count",
     "configured_max_steps",
     "configured_value",
     "datasets_needed",

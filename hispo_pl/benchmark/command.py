@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import argparse
 import json
-import os
 import shlex
 import sys
 from collections.abc import Sequence
@@ -13,6 +11,7 @@ from pathlib import Path
 from ..io import atomic_write_text
 from .configs import datasets_needed, prepare_datasets
 from .launch import Reporter, run_env, run_local, run_ray
+from .parser import build_parser, cpu_count
 from .plan import (
     FIT_MODULE,
     PLAN_FILE,
@@ -25,113 +24,6 @@ from .plan import (
 )
 from .records import export_runs
 from .report import embed_reports, write_report
-
-
-def _cpu_count() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="hispo-pl benchmark",
-        usage="hispo-pl benchmark --stream STREAM --out OUT [options] [-- fit overrides...]",
-        description=(
-            "Run every (method, seed) of a stream as a `hispo-pl fit` subprocess logging to\n"
-            "OUT/runs/<method>/seed<S>/ (resumable: runs with a results.json are skipped,\n"
-            "interrupted ones resume), then write OUT/table.md and table.csv (PER, BWT, FWT\n"
-            "x100 and MEM, mean ± std over seeds), runtime.csv and perf_vs_memory.png.\n"
-            "Arguments after `--` are passed to every `hispo-pl fit`."
-        ),
-        epilog=(
-            "examples:\n"
-            "  hispo-pl benchmark --stream pointmaze-1 --methods all --seeds 3 "
-            "--out results/pointmaze-1\n"
-            "  hispo-pl benchmark --stream pointmaze-2 --methods hispo,scn --seeds 0,4 "
-            "--out results/pm2 -- --data.batch_size 512\n"
-            "  hispo-pl benchmark --stream pointmaze-1 --methods all --seeds 3 --out "
-            "results/pointmaze-1 --launcher ray --address auto\n"
-            "  hispo-pl benchmark --out results/pointmaze-1 --report-only"
-        ),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    parser.add_argument(
-        "--stream", help="stream name (CONFIG_DIR/streams/<name>.yaml) or a YAML path"
-    )
-    parser.add_argument(
-        "--methods",
-        default="all",
-        help="'all' (every CONFIG_DIR/methods/*.yaml, sorted) or a comma list (default: all)",
-    )
-    parser.add_argument(
-        "--seeds",
-        default="3",
-        help="a count N (seeds 0..N-1) or a comma list such as 0,4 (default: 3)",
-    )
-    parser.add_argument("--out", help="output folder (runs/, tables, figure)")
-    parser.add_argument(
-        "--steps-per-task",
-        type=int,
-        default=None,
-        help="gradient steps per task (--trainer.max_steps); default: the stream config's own "
-        "value (6000 in configs/streams/pointmaze-*.yaml; the paper's is 100000)",
-    )
-    parser.add_argument(
-        "--workers",
-        type=int,
-        default=None,
-        help="local: runs at a time (default: CPU cores // threads, at least 1); ray with "
-        "--address local: the private instance gets workers x threads CPUs",
-    )
-    parser.add_argument(
-        "--num-threads",
-        type=int,
-        default=1,
-        help="torch threads (and Ray CPUs) per run (default: 1)",
-    )
-    parser.add_argument(
-        "--launcher",
-        choices=("local", "ray"),
-        default="local",
-        help="local: parallel processes on this machine (default); ray: one Ray remote task "
-        "per run",
-    )
-    parser.add_argument(
-        "--address",
-        default=None,
-        help="ray: 'local' (a private instance), 'auto' (the running cluster) or "
-        "ray://host:10001; default: RAY_ADDRESS, else a local instance",
-    )
-    parser.add_argument(
-        "--config-dir",
-        default="configs",
-        help="where streams/ and methods/ live (default: configs)",
-    )
-    parser.add_argument(
-        "--dry-run", action="store_true", help="print the planned fit commands; run nothing"
-    )
-    parser.add_argument(
-        "--report-only",
-        action="store_true",
-        help="only rebuild the tables and figure in OUT from the finished runs",
-    )
-    parser.add_argument(
-        "--docs",
-        metavar="PAGE",
-        default=None,
-        help="with --report-only: rebuild every report embedded in a documentation page "
-        "(e.g. docs/results.md) from its committed run files",
-    )
-    parser.add_argument(
-        "--export",
-        metavar="DEST",
-        default=None,
-        help="copy every finished run's small files (results, decisions, config) to "
-        "DEST/<method>/seed<S>/ and write the report there (e.g. docs/results/pointmaze-1)",
-    )
-    return parser
 
 
 def _split_extra(argv: Sequence[str]) -> tuple[list[str], list[str]]:
@@ -185,7 +77,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         seeds = parse_seeds(args.seeds)
     except (ValueError, FileNotFoundError) as e:
         parser.error(str(e))
-    workers = args.workers or max(1, _cpu_count() // args.num_threads)
+    workers = args.workers or max(1, cpu_count() // args.num_threads)
     runs = plan_runs(
         stream_config,
         config_dir,

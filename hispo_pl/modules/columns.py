@@ -29,6 +29,7 @@ import torch
 from torch import Tensor, nn
 
 from ..config import BackboneConfig, OptimConfig
+from ..nn.hierarchy import HierarchicalPolicy
 from .hbc import GoalConditionedBC
 
 Init = Literal["fresh", "previous"]
@@ -94,7 +95,7 @@ class NetworkPerTask(GoalConditionedBC):
         self.register_buffer("task_network", torch.zeros(0, dtype=torch.long))
         self._started: int | None = None
 
-    def new_network(self) -> nn.Module:
+    def new_network(self) -> HierarchicalPolicy:
         """A freshly initialised single-task network of this method's backbone (as MEM's
         unit, :meth:`reference_model`)."""
         return self.make_policy()
@@ -131,23 +132,14 @@ class NetworkPerTask(GoalConditionedBC):
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         return self.nets[-1].losses(batch)
 
-    def network_for(self, task: int | None) -> nn.Module:
+    def network_for(self, task: int | None) -> HierarchicalPolicy:
         """A finished task's network; the newest one for the current or an unseen task."""
         if task is not None and task < self.n_tasks:
             return self.nets[int(self.task_network[task])]
         return self.nets[-1]
 
-    @torch.no_grad()
-    def act(
-        self,
-        observation: Tensor,
-        position: Tensor,
-        goal: Tensor,
-        task: int | None = None,
-        velocity: Tensor | None = None,
-    ) -> Tensor:
-        task = self.task_index if task is None else task
-        return self.network_for(task).act(observation, position, goal, velocity)
+    def acting_policy(self, task: int) -> tuple[HierarchicalPolicy, None]:
+        return self.network_for(task), None
 
     # --- checkpoints ----------------------------------------------------------------------
 

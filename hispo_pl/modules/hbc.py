@@ -13,7 +13,7 @@ from torch import Tensor, nn
 from ..config import BackboneConfig, OptimConfig, plain, upgrade_hparams
 from ..errors import CheckpointError, TrainingDivergedError
 from ..nn import fast
-from ..nn.hierarchy import HierarchicalPolicy
+from ..nn.hierarchy import Forward, HierarchicalPolicy
 from ..nn.mlp import GaussianPolicy
 from ..record import TaskRecord
 
@@ -204,8 +204,15 @@ class GoalConditionedBC(L.LightningModule):
         task: int | None = None,
         velocity: Tensor | None = None,
     ) -> Tensor:
-        """Deterministic action; ``task`` selects the task's policy where a method keeps several;
-        ``velocity`` is the goal-space velocity (read by low policies with ``low_velocity``)."""
+        """Deterministic action; ``task`` selects the task's policy where a method keeps several
+        (default: the current task); ``velocity`` is the goal-space velocity (read by low
+        policies with ``low_velocity``)."""
+        policy, forward = self.acting_policy(self.task_index if task is None else task)
+        return policy.act(observation, position, goal, velocity, forward)
+
+    def acting_policy(self, task: int) -> tuple[HierarchicalPolicy, Forward | None]:
+        """The backbone that acts for task ``task`` and how its heads are called (None: plain
+        heads); the one thing a method adds to acting."""
         raise NotImplementedError
 
 
@@ -233,16 +240,8 @@ class HBC(GoalConditionedBC):
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         return self.net.losses(batch)
 
-    @torch.no_grad()
-    def act(
-        self,
-        observation: Tensor,
-        position: Tensor,
-        goal: Tensor,
-        task: int | None = None,
-        velocity: Tensor | None = None,
-    ) -> Tensor:
-        return self.net.act(observation, position, goal, velocity)
+    def acting_policy(self, task: int) -> tuple[HierarchicalPolicy, None]:
+        return self.net, None
 
 
 class BC(HBC):

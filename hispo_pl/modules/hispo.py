@@ -17,6 +17,7 @@ from torch import Tensor, nn
 
 from ..config import BackboneConfig, OptimConfig
 from ..nn import eval_mode
+from ..nn.hierarchy import Forward, HierarchicalPolicy
 from ..nn.mlp import GaussianPolicy
 from ..nn.subspace import AnchorInit, SubspaceResidualMLP, cosine_similarity_penalty
 from .hbc import GoalConditionedBC
@@ -278,21 +279,13 @@ class HiSPO(GoalConditionedBC):
             return rows[task]
         return self.current_alpha(subspace)
 
-    @torch.no_grad()
-    def act(
-        self,
-        observation: Tensor,
-        position: Tensor,
-        goal: Tensor,
-        task: int | None = None,
-        velocity: Tensor | None = None,
-    ) -> Tensor:
-        task = self.task_index if task is None else task
+    def acting_policy(self, task: int) -> tuple[HierarchicalPolicy, Forward]:
+        """The subspaces, each head mixed with the weights of task ``task``."""
 
         def forward(name: str, x: Tensor) -> tuple[Tensor, Tensor]:
             return self.policies[name](x, self.alpha_for(self.subspace_of(name), task))
 
-        return self.policies.act(observation, position, goal, velocity, forward)
+        return self.policies, forward
 
     @property
     def n_tasks(self) -> int:

@@ -19,6 +19,7 @@ import torch
 from torch import Tensor
 
 from ..config import BackboneConfig, OptimConfig
+from ..nn.hierarchy import Forward, HierarchicalPolicy
 from ..nn.progressive import ProgressivePolicy
 from .columns import record_task
 from .hbc import GoalConditionedBC
@@ -108,18 +109,10 @@ class PNN(GoalConditionedBC):
         """The backbone's losses of the newest column (the earlier ones run without gradients)."""
         return self.net.losses(batch)
 
-    @torch.no_grad()
-    def act(
-        self,
-        observation: Tensor,
-        position: Tensor,
-        goal: Tensor,
-        task: int | None = None,
-        velocity: Tensor | None = None,
-    ) -> Tensor:
-        column = self.column_for(self.task_index if task is None else task)
-        forward = lambda name, x: self.net[name](x, column)  # noqa: E731
-        return self.net.act(observation, position, goal, velocity, forward)
+    def acting_policy(self, task: int) -> tuple[HierarchicalPolicy, Forward]:
+        """Every head runs its columns up to task ``task``'s."""
+        column = self.column_for(task)
+        return self.net, lambda name, x: self.net[name](x, column)
 
     # --- checkpoints ----------------------------------------------------------------------
 
