@@ -1,0 +1,175 @@
+"""A run's configuration before anything trains: the method knobs written into the callbacks
+that take them, the checks that refuse values which would train nothing or wrongly, and the
+fingerprint that keeps a resumed stream on the settings it started with."""
+
+from __future__ import annotations
+
+import json
+
+from .errors import ConfigError
+
+# flag -> (help, {callback class name: its parameter}): the knobs of the method configs'
+# callbacks, settable without copying a config (a dotted --trainer.callbacks.init_args.X only
+# reaches the last callback of the list)
+METHOD_KNOBS: dict[str, tuple[str, dict[str, str]]] = {
+    "eps_high": (
+        "tolerance ε of the high subspace's pruning rule (SubspacePruning)",
+        {"SubspacePruning": "eps_high"},
+    ),
+    "eps_low": (
+        "tolerance ε of the low subspace's pruning rule (SubspacePruning)",
+        {"SubspacePruning": "eps_low"},
+    ),
+    "eps": ("tolerance ε of CSP's critic rule (CriticPruning)", {"CriticPruning": "eps"}),
+    "search_candidates": (
+        "Dirichlet candidates per subspace search (DirichletEvaluation, CriticEvaluation)",
+        {"DirichletEvaluation": "n_candidates", "CriticEvaluation": "n_candidates"},
+    ),
+    "search_batches": (
+        "held-out batches each candidate is scored on (DirichletEvaluation, CriticEvaluation)",
+        {"DirichletEvaluation": "n_batches", "CriticEvaluation": "n_batches"},
+    ),
+    "eval_episodes": (
+        "rollout episodes per task evaluation (RolloutEvaluation)",
+        {"RolloutEvaluation": "episodes"},
+    ),
+    "eval_every": (
+        "also evaluate the current task every N steps, 0: only at its end (RolloutEvaluation)",
+        {"RolloutEvaluation": "eval_every"},
+    ),
+}
+
+
+def apply_method_knobs(config) -> None:
+    """Write each knob flag given (``--eps_low 0.2``) into the init_args of the callbacks that
+    take it, then clear the flag, so the saved config and the run's fingerprint hold the
+    effective values whichever way they were set.
+
+    Raises:
+        ConfigError: a knob that no callback of the configured method takes.
+    """
+    callbacks = (config.get("trainer") or {}).get("callbacks") or []
+    for flag, (_, targets) in METHOD_KNOBS.items():
+        value = config.get(flag)
+        if value is None:
+            continue
+        hit = False
+        for callback in callbacks:
+            name = str(callback.get("class_path", "")).rsplit(".", 1)[-1]
+            if name in targets:
+                callback["init_args"][targets[name]] = value
+                hit = True
+        if not hit:
+            names = [str(c.get("class_path", "")).rsplit(".", 1)[-1] for c in callbacks]
+            raise ConfigError(
+                f"--{flag}: no callback of this method takes it (its callbacks: "
+                f"{', '.join(names) or 'none'}); it applies to {', '.join(targets)}"
+            )
+        config[flag] = None
+
+
+def _config_problems(node, path: str = "") -> list[str]:
+    """Out-of-range values anywhere in a parsed configuration, by key name (model and callback
+    ``init_args`` included): each problem as ``key = value: what is allowed``."""
+    problems: list[str] = []
+    if isinstance(node, dict):
+        for key, value in node.items():
+            problems += _config_problems(value, f"{path}.{key}" if path else str(key))
+        return problems
+    if isinstance(node, list):
+        for i, value in enumerate(node):
+            problems += _config_problems(value, f"{path}[{i}]")
+        return problems
+    if isinstance(node, bool) or not isinstance(node, int | float):
+        return problems
+    key = path.rsplit(".", 1)[-1]
+    parent = path.rsplit(".", 2)[-2] if path.count(".") >= 1 else ""
+    rules = {
+        "batch_size": (lambda v: v >= 1, "must be >= 1"),
+        "steps_per_epoch": (lambda v: v >= 1, "must be >= 1"),
+        "episodes": (lambda v: v >= 1, "must be >= 1"),
+        "n_candidates": (lambda v: v >= 1, "must be >= 1"),
+        "n_batches": (lambda v: v >= 1, "must be >= 1"),
+        "eval_every": (lambda v: v >= 0, "must be >= 0 (0: only at the end)"),
+        "dropout": (lambda v: 0 <= v < 1, "must be in [0, 1)"),
+        "holdout": (lambda v: 0 <= v < 1, "must be in [0, 1) (a share of episodes)"),
+        "convergence_window": (lambda v: 0 <= v < 1, "must be in [0, 1) (a share of steps)"),
+        "lr": (lambda v: v > 0 and v == v, "must be > 0"),
+    }
+    if key in rules:
+        ok, allowed = rules[key]
+    elif key.startswith("eps") or parent == "eps":
+        ok, allowed = (lambda v: v >= 0), "must be >= 0"
+    else:
+        return problems
+    if not ok(node):
+        problems.append(f"{path} = {node}: {allowed}")
+    return problems
+
+
+def validate_config(config: dict) -> None:
+    """Refuse, before any data is made or any step trained, values that would train nothing
+    or train wrongly (batch 0, no steps, dropout 1, a negative tolerance...), and options that
+    a stream would silently ignore.
+
+    Raises:
+        ConfigError: one message listing every problem.
+    """
+    problems = _config_problems({k: v for k, v in config.items() if k != "config"})
+    trainer = config.get("trainer") or {}
+    max_steps, max_epochs = trainer.get("max_steps"), trainer.get("max_epochs")
+    by_epochs = max_steps == -1 and max_epochs is not None and max_epochs > 0
+    if max_steps is not None and max_steps < 1 and not by_epochs:
+        problems.append(f"trainer.max_steps = {max_steps}: must be >= 1 (gradient steps per task)")
+    if (config.get("checkpoint_every") or 0) < 0:
+        problems.append(f"checkpoint_every = {config['checkpoint_every']}: must be >= 0 (0: off)")
+    if (config.get("data") or {}).get("stream") and config.get("ckpt_path"):
+        problems.append(
+            f"ckpt_path = {config['ckpt_path']}: a stream resumes by itself; rerun the same "
+            "command without --ckpt_path (its run directory holds the finished tasks)"
+        )
+    if problems:
+        raise ConfigError("invalid configuration:\n  " + "\n  ".join(problems))
+
+
+# settings that change neither what a run trains nor what it measures: a rerun may change them
+NOT_IN_FINGERPRINT = (
+    "config",
+    "num_threads",
+    "ckpt_path",
+    "scratch_results",  # FWT's reference, applied when the results are written
+    "checkpoint_every",
+    "trainer.logger",
+    "trainer.enable_progress_bar",
+    "trainer.enable_model_summary",
+    "trainer.log_every_n_steps",
+    "trainer.default_root_dir",
+    "trainer.enable_checkpointing",
+    "trainer.profiler",
+)
+
+
+def plain_config(config: dict) -> dict:
+    """A parsed configuration as JSON values (paths and other objects as strings)."""
+    return json.loads(json.dumps(config, default=str))
+
+
+def run_fingerprint(config: dict) -> dict:
+    """Every setting that defines a stream run, flat (``model.init_args.optim.lr: 0.001``,
+    ``trainer.callbacks[1].init_args.eps_high: 0.1``), without :data:`NOT_IN_FINGERPRINT`."""
+    flat: dict = {}
+
+    def walk(node, path: str) -> None:
+        if any(path == k or path.startswith(k + ".") for k in NOT_IN_FINGERPRINT):
+            return
+        if isinstance(node, dict):
+            for key, value in node.items():
+                walk(value, f"{path}.{key}" if path else str(key))
+        elif isinstance(node, list) and any(isinstance(v, dict | list) for v in node):
+            for i, value in enumerate(node):
+                walk(value, f"{path}[{i}]")
+        else:
+            flat[path] = node
+
+    walk(plain_config(config), "")
+    return flat
