@@ -58,7 +58,8 @@ def success_markdown(R: Sequence[Sequence[float | None]]) -> str:
 
 
 def decisions_markdown(decisions: Sequence[dict]) -> str:
-    """One row per task and subspace: decision, the losses the rule compared, anchors after."""
+    """One row per task and subspace: decision, the losses the rule compared, anchors after.
+    (A zero-shot record's ``eps`` is the PAC test's, per subspace: not a pruning tolerance.)"""
     lines = [
         "| task | subspace | decision | L_prev | L_curr | L_prev / L_curr | 1 + ε | anchors |",
         "|---|---|---|---:|---:|---:|---:|---:|",
@@ -66,7 +67,7 @@ def decisions_markdown(decisions: Sequence[dict]) -> str:
     for d in decisions:
         prev, curr = d.get("l_prev"), d.get("l_curr")
         ratio = f"{prev / curr:.3f}" if prev is not None and curr else ""
-        eps = f"{1 + d['eps']:.2f}" if d.get("eps") is not None else ""
+        eps = f"{1 + d['eps']:.2f}" if isinstance(d.get("eps"), int | float) else ""
         lines.append(
             f"| T{d['task'] + 1:02d} | {d['subspace']} | {d['decision']} | "
             f"{'' if prev is None else f'{prev:.4f}'} | {'' if curr is None else f'{curr:.4f}'} | "

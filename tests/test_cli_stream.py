@@ -116,8 +116,8 @@ def _assert_stream_report(run_dir: Path, results: dict) -> None:
     assert "hp_metric" not in tags["scalars"]
     curve = acc.Scalars("stream/success/T01")
     assert [(p.step, p.value) for p in curve] == [(1, results["R"][0][0]), (2, results["R"][1][0])]
-    weight = acc.Scalars("alpha/low/T02/anchor_2")[0].value
-    assert weight == pytest.approx(results["alphas"]["low"][1][1])
+    weight = acc.Scalars("alpha/high/T02/anchor_2")[0].value
+    assert weight == pytest.approx(results["alphas"]["high"][1][1])
     assert {
         "stream/success_matrix",
         "alpha/high",

@@ -99,3 +99,10 @@ def test_console_lines():
     assert task_summary(0, 4, 52, [0.97, 0.1, 0.0, 0.0], decisions) == (
         "task 1/4 done in 52s: success 97 %"
     )
+
+
+def test_zero_shot_records_have_no_pruning_tolerance():
+    row = decisions_markdown(
+        [{"task": 1, "subspace": "low", "decision": "zero-shot", "eps": {"low": 1.0}}]
+    ).splitlines()[2]
+    assert row == "| T02 | low | zero-shot |  |  |  |  |  |"
