@@ -43,13 +43,17 @@ class RolloutEvaluation(L.Callback):
         self._evaluators: dict[Task, RolloutEvaluator] = {}
 
     def _run(
-        self, task: str | Task, pl_module: L.LightningModule, task_index: int | None
+        self,
+        task: str | Task,
+        pl_module: L.LightningModule,
+        task_index: int | None,
+        record: bool = False,
     ) -> RolloutResult:
         task = parse_task(task)
         if task not in self._evaluators:
             self._evaluators[task] = RolloutEvaluator(task, self.episodes, self.seed)
         policy = module_policy(pl_module, task=task_index)
-        return self._evaluators[task].run(policy, progress=self.progress)
+        return self._evaluators[task].run(policy, progress=self.progress, record=record)
 
     def _evaluate_current(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         result = self._run(trainer.datamodule.task, pl_module, pl_module.task_index)
@@ -75,11 +79,13 @@ class RolloutEvaluation(L.Callback):
 
     def _evaluate_stream(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         i = pl_module.task_index
-        row = [
-            self._run(task, pl_module, j).success
+        results = [
+            self._run(task, pl_module, j, record=j == i)
             for j, task in enumerate(trainer.datamodule.stream)
         ]
+        row = [r.success for r in results]
         pl_module.task_record.success_row = row
+        pl_module.task_record.rollouts = results[i]  # the current task's, with their paths
         self._record(pl_module, {"success": row[i], "step": trainer.global_step})
 
     def _record(self, pl_module: L.LightningModule, evaluation: dict[str, float]) -> None:

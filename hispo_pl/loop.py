@@ -200,7 +200,7 @@ class ContinualLoop:
         checkpoint_every: save the task in progress every this many steps
             (``task_XX.partial.ckpt``, see :class:`TaskCheckpoint`); a rerun resumes the task
             from there. 0: only whole tasks are kept.
-        pictures: after each task, draw ten of its rollouts on its maze for TensorBoard.
+        pictures: after each task, draw ten of its scored rollouts on its maze for TensorBoard.
     """
 
     def __init__(
@@ -322,13 +322,15 @@ class ContinualLoop:
         return results
 
     def _rollout_picture(self, k: int):
-        """Ten of task ``k``'s scored rollouts drawn on its maze, for TensorBoard."""
-        from .evaluation import module_policy
-        from .render import maze_figure, rollout_paths
+        """Ten of task ``k``'s scored rollouts (RolloutEvaluation's, with their paths) drawn on
+        its maze, for TensorBoard; None when the task's rollouts were not recorded."""
+        from .render import Overlay, maze_figure
 
-        task = self.stream[k]
-        overlay = rollout_paths(task, module_policy(self.module, task=k), episodes=10)
-        return maze_figure([task], [overlay])
+        rollouts = self.module.task_record.rollouts
+        if rollouts is None or rollouts.trajectories is None:
+            return None
+        overlay = Overlay(list(rollouts.trajectories[:10]), rollouts.successes[:10])
+        return maze_figure([self.stream[k]], [overlay])
 
     def _train_task(self, k: int, progress: dict) -> None:
         """Train task ``k`` and record its checkpoint, configuration and row of R."""

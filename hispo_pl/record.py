@@ -26,6 +26,8 @@ class TaskRecord:
         episodes: episodes of that evaluation.
         success_row: at a stream task's end, the success on every task of the stream (a row
             of R, read by the loop).
+        rollouts: at a stream task's end, that task's scored rollouts with their paths (a
+            ``RolloutResult``; the loop draws some of them for TensorBoard).
     """
 
     searches: dict[str, Any] = field(default_factory=dict)
@@ -33,3 +35,4 @@ class TaskRecord:
     evaluation: dict[str, float] | None = None
     episodes: int | None = None
     success_row: list[float] | None = None
+    rollouts: Any = None
