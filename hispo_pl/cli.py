@@ -187,7 +187,7 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
         first_trainer[0] = False
         task_callbacks = list(callbacks)
         max_steps = config["trainer"].get("max_steps") or 0
-        label = f"task {k + 1}/{len(datamodule.stream)}"
+        label = f"task {task_label(k)}/{len(datamodule.stream)}"
         if max_steps > 0 and not interactive():
             task_callbacks.append(StepLines(label, every=max(1, max_steps // 10)))
             extra["enable_progress_bar"] = False

@@ -11,6 +11,8 @@ import time
 import lightning as L
 from lightning.pytorch.callbacks import TQDMProgressBar
 
+from .rundir import task_label
+
 # Lightning's start-of-fit notices (accelerator lines, tips) go through these loggers
 LIGHTNING_NOTICES = (
     "lightning.pytorch.utilities.rank_zero",
@@ -63,12 +65,12 @@ def decision_parts(decisions: list[dict]) -> list[str]:
 
 
 def task_header(k: int, n: int, task: str, steps: int) -> str:
-    return f"task {k + 1}/{n}: {task}, {steps} steps"
+    return f"task {task_label(k)}/{n}: {task}, {steps} steps"
 
 
 def task_summary(k: int, n: int, seconds: float, row: list[float], decisions: list[dict]) -> str:
     """After task ``k``: time, success on it and on the tasks before, each subspace's decision."""
-    line = f"task {k + 1}/{n} done in {duration(seconds)}: success {100 * row[k]:.0f} %"
+    line = f"task {task_label(k)}/{n} done in {duration(seconds)}: success {100 * row[k]:.0f} %"
     if k:
         line += f" (earlier tasks: mean {100 * sum(row[:k]) / k:.0f} %)"
     parts = decision_parts([d for d in decisions if d.get("task") == k])

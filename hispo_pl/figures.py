@@ -11,12 +11,19 @@ from collections.abc import Sequence
 import numpy as np
 from matplotlib.figure import Figure
 
+from .rundir import task_label
+
 TRIANGLE = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, np.sqrt(3) / 2]])
 
 
+def task_tag(k: int) -> str:
+    """``T01`` for the 0-based task 0: tasks as every table and tag of hispo-pl names them."""
+    return f"T{task_label(k):02d}"
+
+
 def task_labels(n: int) -> list[str]:
-    """``T01``, ``T02``...: tasks as every table and tag of hispo-pl names them."""
-    return [f"T{k + 1:02d}" for k in range(n)]
+    """The tags of the first ``n`` tasks."""
+    return [task_tag(k) for k in range(n)]
 
 
 def success_matrix_figure(R: Sequence[Sequence[float | None]]) -> Figure:

@@ -15,7 +15,13 @@ from collections.abc import Sequence
 from lightning.pytorch.loggers import Logger, TensorBoardLogger
 from matplotlib.figure import Figure
 
-from .figures import anchor_weights_figure, simplex_figure, success_matrix_figure, task_labels
+from .figures import (
+    anchor_weights_figure,
+    simplex_figure,
+    success_matrix_figure,
+    task_labels,
+    task_tag,
+)
 
 STREAM_METRICS = ("PER", "BWT", "FWT", "MEM")
 
@@ -69,7 +75,7 @@ def decisions_markdown(decisions: Sequence[dict]) -> str:
         ratio = f"{prev / curr:.3f}" if prev is not None and curr else ""
         eps = f"{1 + d['eps']:.2f}" if isinstance(d.get("eps"), int | float) else ""
         lines.append(
-            f"| T{d['task'] + 1:02d} | {d['subspace']} | {d['decision']} | "
+            f"| {task_tag(d['task'])} | {d['subspace']} | {d['decision']} | "
             f"{'' if prev is None else f'{prev:.4f}'} | {'' if curr is None else f'{curr:.4f}'} | "
             f"{ratio} | {eps} | {d.get('anchors', '')} |"
         )
@@ -92,7 +98,7 @@ def log_task_end(
     for logger in loggers:
         logger.log_metrics(metrics, step=step)
         if picture is not None and isinstance(logger, TensorBoardLogger):
-            logger.experiment.add_figure(f"rollouts/{task_labels(step)[-1]}", picture, step)
+            logger.experiment.add_figure(f"rollouts/{task_tag(task_index)}", picture, step)
 
 
 def log_stream_end(
