@@ -269,15 +269,7 @@ def check_fit_args(argv: list[str]) -> str | None:
     threads = torch.get_num_threads()
     try:
         with contextlib.redirect_stderr(errors), contextlib.redirect_stdout(io.StringIO()):
-            HispoCLI(
-                model_class=GoalConditionedBC,
-                datamodule_class=TaskDataModule,
-                subclass_mode_model=True,
-                args=args,
-                trainer_defaults={"accelerator": "cpu", "devices": 1},
-                save_config_kwargs={"overwrite": True},
-                run=False,
-            )
+            run_lightning_cli(args, run=False)
     except SystemExit as exit:
         if exit.code:
             lines = [ln for ln in errors.getvalue().splitlines() if ln.strip()]
@@ -289,7 +281,8 @@ def check_fit_args(argv: list[str]) -> str | None:
     return None
 
 
-def run_lightning_cli(args: list[str] | None = None) -> HispoCLI:
+def run_lightning_cli(args: list[str] | None = None, run: bool = True) -> HispoCLI:
+    """``hispo-pl fit``'s LightningCLI; ``run=False`` parses, checks and instantiates only."""
     return HispoCLI(
         model_class=GoalConditionedBC,
         datamodule_class=TaskDataModule,
@@ -297,6 +290,7 @@ def run_lightning_cli(args: list[str] | None = None) -> HispoCLI:
         args=args,
         trainer_defaults={"accelerator": "cpu", "devices": 1},
         save_config_kwargs={"overwrite": True},
+        run=run,
     )
 
 

@@ -228,18 +228,9 @@ def test_stream_help_names_every_stream(capsys):
 
 
 def _instantiated(args: list[str]):
-    from hispo_pl.cli import HispoCLI
-    from hispo_pl.data.datamodule import TaskDataModule
-    from hispo_pl.modules.hbc import GoalConditionedBC
+    from hispo_pl.cli import run_lightning_cli
 
-    return HispoCLI(
-        model_class=GoalConditionedBC,
-        datamodule_class=TaskDataModule,
-        subclass_mode_model=True,
-        args=args,
-        trainer_defaults={"accelerator": "cpu", "devices": 1},
-        run=False,
-    )
+    return run_lightning_cli(args, run=False)
 
 
 def test_method_knobs_reach_their_callbacks(tmp_path):
