@@ -23,13 +23,12 @@ def set_num_threads(n: int) -> None:
 
 def data_main(argv: list[str]) -> int:
     from .data.datasets import (
-        DEFAULT_SEED,
         dataset_problem,
         dataset_stats,
-        generate_dataset,
         known_dataset_names,
         local_dataset_id,
     )
+    from .data.generation import DEFAULT_SEED, generate_dataset
 
     parser = argparse.ArgumentParser(prog="hispo-pl data", description="Expert datasets")
     sub = parser.add_subparsers(dest="cmd", required=True)

@@ -25,7 +25,8 @@ def minari_home(tmp_path_factory):
 @pytest.fixture(scope="session")
 def tiny_umaze(minari_home):
     """A 6-episode local pointmaze-umaze dataset, generated once, as EpisodeArrays."""
-    from hispo_pl.data.datasets import generate_dataset, load_episodes
+    from hispo_pl.data.datasets import load_episodes
+    from hispo_pl.data.generation import generate_dataset
 
     assert os.environ["MINARI_DATASETS_PATH"] == str(minari_home)
     generate_dataset("pointmaze-umaze", episodes=TINY_EPISODES, progress=False)

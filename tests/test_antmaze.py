@@ -12,7 +12,8 @@ import torch
 
 from hispo_pl.cli import main
 from hispo_pl.data.datamodule import TaskDataModule
-from hispo_pl.data.datasets import collect_episode, episodes_to_arrays
+from hispo_pl.data.datasets import episodes_to_arrays
+from hispo_pl.data.generation import collect_episode
 from hispo_pl.data.tasks import VARIANTS, parse_task, transform_action, transform_observation
 from hispo_pl.envs import agent_flipped, make_env
 from hispo_pl.envs.experts import (

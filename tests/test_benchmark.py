@@ -98,11 +98,11 @@ def test_configured_value_and_datasets_needed(tmp_path):
 
 
 def test_prepare_datasets_generates_only_the_missing_ones(tiny_umaze, monkeypatch, capsys):
-    from hispo_pl.data import datasets
+    from hispo_pl.data import generation
 
     made = []
     monkeypatch.setattr(
-        datasets, "generate_dataset", lambda name, episodes: made.append((name, episodes))
+        generation, "generate_dataset", lambda name, episodes: made.append((name, episodes))
     )
     bm.prepare_datasets({"pointmaze-umaze": 3, "pointmaze-medium": 7})
     assert made == [("pointmaze-medium", 500)]  # umaze exists (the tiny one)

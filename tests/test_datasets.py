@@ -8,17 +8,17 @@ import minari
 import numpy as np
 import pytest
 
-from hispo_pl.data import datasets
+from hispo_pl.data import generation
 from hispo_pl.data.datasets import (
     DatasetNotFoundError,
     EpisodeArrays,
-    _goal_stats,
     dataset_exists,
     dataset_path,
-    generate_dataset,
+    episodes_to_arrays,
     load_episodes,
     local_dataset_id,
 )
+from hispo_pl.data.generation import _goal_stats, generate_dataset
 
 UMAZE_ID = "hispo/pointmaze-umaze-expert-v0"
 UMAZE_STEPS = 300
@@ -175,7 +175,7 @@ def test_missing_local_dataset_without_generation_raises(monkeypatch):
     def no_generation(*args, **kwargs):
         raise AssertionError("must not generate")
 
-    monkeypatch.setattr(datasets, "generate_dataset", no_generation)
+    monkeypatch.setattr(generation, "generate_dataset", no_generation)
     with pytest.raises(DatasetNotFoundError) as info:
         load_episodes("pointmaze-large-PO[10]", generate_if_missing=False)
     message = str(info.value)
@@ -187,13 +187,13 @@ def test_missing_local_dataset_without_generation_raises(monkeypatch):
 def test_missing_local_dataset_is_generated_on_first_use(monkeypatch, tmp_path):
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
     asked = []
-    real = datasets.generate_dataset
+    real = generation.generate_dataset
 
     def small(name, **kwargs):  # the default (500 episodes) is too slow for a unit test
         asked.append(name)
         return real(name, episodes=3, progress=False)
 
-    monkeypatch.setattr(datasets, "generate_dataset", small)
+    monkeypatch.setattr(generation, "generate_dataset", small)
     data = load_episodes("pointmaze-umaze-PA[2]")
     assert asked == ["pointmaze-umaze"]
     assert data.n_episodes == 2
@@ -206,14 +206,14 @@ def test_missing_local_dataset_is_generated_on_first_use(monkeypatch, tmp_path):
 
 
 def _arrays(dataset_id: str) -> EpisodeArrays:
-    return datasets.episodes_to_arrays(minari.load_dataset(dataset_id).iterate_episodes())
+    return episodes_to_arrays(minari.load_dataset(dataset_id).iterate_episodes())
 
 
 def test_existing_dataset_is_not_regenerated(tiny_umaze, monkeypatch):
     def boom(*args, **kwargs):
         raise AssertionError("collected again")
 
-    monkeypatch.setattr(datasets, "collect_episode", boom)
+    monkeypatch.setattr(generation, "collect_episode", boom)
     assert generate_dataset("pointmaze-umaze", episodes=TINY_EPISODES, progress=False) == UMAZE_ID
     assert minari.list_local_datasets()[UMAZE_ID]["total_episodes"] == TINY_EPISODES
 
@@ -227,19 +227,19 @@ def test_other_settings_over_an_existing_dataset_need_overwrite(
     def boom(*args, **kwargs):
         raise AssertionError("collected again")
 
-    monkeypatch.setattr(datasets, "collect_episode", boom)
+    monkeypatch.setattr(generation, "collect_episode", boom)
     kwargs = {"episodes": TINY_EPISODES, **asked}
-    with pytest.raises(datasets.DatasetSettingsError, match="--overwrite") as err:
+    with pytest.raises(generation.DatasetSettingsError, match="--overwrite") as err:
         generate_dataset("pointmaze-umaze", progress=False, **kwargs)
     assert named in str(err.value)
     assert minari.list_local_datasets()[UMAZE_ID]["total_episodes"] == TINY_EPISODES
 
 
 def test_generated_dataset_records_its_settings_and_requirements(tiny_umaze):
-    assert datasets.generation_settings(UMAZE_ID) == {
+    assert generation.generation_settings(UMAZE_ID) == {
         "episodes": TINY_EPISODES,
         "seed": 0,
-        "noise": datasets.expert_class("pointmaze-umaze").action_noise,
+        "noise": generation.expert_class("pointmaze-umaze").action_noise,
     }
     requirements = minari.load_dataset(UMAZE_ID).storage.metadata["requirements"]
     assert any(r.startswith("hispo-pl") for r in requirements)
@@ -267,7 +267,7 @@ def test_interrupted_generation_resumes_identically(monkeypatch, tmp_path):
 
     # interrupted after two episodes, then resumed
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "resumed"))
-    real = datasets.collect_episode
+    real = generation.collect_episode
     calls = []
 
     class Interrupted(Exception):
@@ -279,7 +279,7 @@ def test_interrupted_generation_resumes_identically(monkeypatch, tmp_path):
         calls.append(args[3])  # the episode's reset seed
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(datasets, "collect_episode", dies_after_two)
+    monkeypatch.setattr(generation, "collect_episode", dies_after_two)
     with pytest.raises(Interrupted):
         generate_dataset("pointmaze-umaze", episodes=episodes, progress=False)
     assert not dataset_exists(ref_id)
@@ -293,7 +293,7 @@ def test_interrupted_generation_resumes_identically(monkeypatch, tmp_path):
         resumed_calls.append(args[3])
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(datasets, "collect_episode", counting)
+    monkeypatch.setattr(generation, "collect_episode", counting)
     assert generate_dataset("pointmaze-umaze", episodes=episodes, progress=False) == ref_id
     assert resumed_calls == [2, 3]  # only the missing episodes are collected
     resumed = _arrays(ref_id)

@@ -125,7 +125,8 @@ minari.create_dataset_from_buffers = _create_then_hang
 
 
 def test_truncated_dataset_counts_as_missing_and_is_rebuilt(tmp_path, monkeypatch, capsys):
-    from hispo_pl.data.datasets import dataset_path, dataset_problem, generate_dataset
+    from hispo_pl.data.datasets import dataset_path, dataset_problem
+    from hispo_pl.data.generation import generate_dataset
 
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
     dataset_id = generate_dataset("pointmaze-umaze", episodes=2, progress=False)

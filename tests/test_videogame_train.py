@@ -11,7 +11,8 @@ import pytest
 import torch
 
 from hispo_pl.cli import main
-from hispo_pl.data.datasets import dataset_stats, generate_dataset, load_episodes, local_dataset_id
+from hispo_pl.data.datasets import dataset_stats, load_episodes, local_dataset_id
+from hispo_pl.data.generation import generate_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 EPISODES = 4

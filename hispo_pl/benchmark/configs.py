@@ -64,7 +64,8 @@ def datasets_needed(configs: Sequence[Path], overrides: Sequence[str] = ()) -> d
 def prepare_datasets(needed: dict[str, int]) -> None:
     """Generate the missing local datasets here, once, before the runs start: runs that each
     generated a missing dataset on first use would race on the same files."""
-    from ..data.datasets import dataset_exists, default_episodes, generate_dataset, local_dataset_id
+    from ..data.datasets import dataset_exists, default_episodes, local_dataset_id
+    from ..data.generation import generate_dataset
 
     for name, episodes in sorted(needed.items()):
         if not dataset_exists(local_dataset_id(name)):
