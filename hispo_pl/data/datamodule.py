@@ -48,8 +48,10 @@ class TaskDataModule(L.LightningDataModule):
         waysteps: subgoal distance; default per maze from the paper.
         her_temperature: mean goal offset (steps); default per maze from the paper.
         her_strategy: exponential | uniform | geometric.
-        goal_horizon: clip relabelled goals at the ``episode`` end or at the ``segment`` end
-            (the point where the expert reached the goal it was heading for).
+        goal_horizon: clip relabelled goals at the ``segment`` end (the point where the expert
+            reached the goal it was heading for: past it, a continuing episode's path is a
+            detour to the next goal, not a way to the relabelled one) or at the ``episode``
+            end (the reference's).
         steps_per_epoch: batches per epoch (Trainer's ``max_steps`` bounds the total).
         seed: sampler seed.
         stream: a stream name (pointmaze-1, pointmaze-2, antmaze-1, antmaze-2, videogame-1,
@@ -85,7 +87,7 @@ class TaskDataModule(L.LightningDataModule):
         waysteps: int | None = None,
         her_temperature: float | None = None,
         her_strategy: Strategy = "exponential",
-        goal_horizon: Horizon = "episode",
+        goal_horizon: Horizon = "segment",
         steps_per_epoch: int = 1000,
         seed: int = 0,
         stream: str | list[str] | None = None,
