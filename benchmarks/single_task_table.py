@@ -1,27 +1,51 @@
-"""Single-task success of several configs on many mazes, side by side (the paper's HBC-vs-BC
-table, appendix E.1): one ``hispo-pl fit`` per (config, task), run in parallel processes,
-resumable (a run whose ``result.json`` exists is skipped), then ``table.md`` and ``table.csv``.
+"""Single-task success of several settings on many mazes, side by side: one ``hispo-pl fit``
+per (setting, task, seed), run in parallel processes, resumable (a run whose ``result.json``
+exists is skipped), then ``table.md`` and ``table.csv`` (success mean ± std over seeds).
+
+A setting is a config file (the paper's HBC-vs-BC table, appendix E.1)::
 
     python benchmarks/single_task_table.py --config configs/hbc/amazeville.yaml \\
         --config configs/bc/amazeville.yaml --tasks amazeville --out results/amazeville-single \\
         --workers 2 -- --trainer.max_steps 10000 --data.batch_size 512
 
-``--tasks`` takes task specs and family names (a family = all its mazes). Arguments after
-``--`` go to every fit.
+or one config with named overrides (``--setting NAME='--flag value ...'``, one column each)::
+
+    python benchmarks/single_task_table.py --config 'configs/hbc/pointmaze-{maze}.yaml' \\
+        --setting episode='--data.goal_horizon episode' --setting segment='' \\
+        --tasks pointmaze-medium-N,pointmaze-large-N --seeds 0,1 --out results/relabel
+
+``{maze}`` in a config path stands for each task's maze. ``--tasks`` takes task specs and
+family names (a family = all its mazes). Arguments after ``--`` go to every fit.
+``--report-only`` rebuilds the tables from the ``result.json`` files under ``--out``.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import shlex
+import statistics
 import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass
 from pathlib import Path
 
 from hispo_pl.data.tasks import FAMILIES, parse_task
 from hispo_pl.rundir import RunDir
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One column of the table: a config (``{maze}`` filled per task) and overrides."""
+
+    name: str
+    config: str
+    overrides: tuple[str, ...] = ()
+
+    def config_for(self, task: str) -> Path:
+        return Path(self.config.format(maze=parse_task(task).maze))
 
 
 def expand_tasks(items: list[str]) -> list[str]:
@@ -35,59 +59,92 @@ def expand_tasks(items: list[str]) -> list[str]:
     return out
 
 
-def run_name(config: Path, task: str) -> str:
-    """``hbc-amazeville-HOOO``: the config's folder (hbc, bc) and the task's maze."""
+def parse_settings(configs: list[str], named: list[str]) -> list[Setting]:
+    """``--config`` files as settings named by their folder (hbc, bc), or, with ``--setting``,
+    one setting per ``NAME=OVERRIDES`` on the one config."""
+    if not named:
+        return [Setting(Path(c).parent.name, c) for c in configs]
+    if len(configs) != 1:
+        raise SystemExit("--setting needs exactly one --config")
+    settings = []
+    for item in named:
+        name, sep, overrides = item.partition("=")
+        if not sep or not name:
+            raise SystemExit(f"--setting {item!r}: expected NAME='--flag value ...'")
+        settings.append(Setting(name, configs[0], tuple(shlex.split(overrides))))
+    return settings
+
+
+def run_name(setting: Setting, task: str) -> str:
+    """``hbc-amazeville-HOOO``: the setting and the task's maze."""
     t = parse_task(task)
-    return f"{config.parent.name}-{t.family}-{t.maze}"
+    return f"{setting.name}-{t.family}-{t.maze}"
 
 
-def fit_argv(config: Path, task: str, out: Path, extra: list[str]) -> list[str]:
+def run_dir(out: Path, setting: Setting, task: str, seed: int) -> RunDir:
+    return RunDir(out / "runs" / run_name(setting, task) / f"seed{seed}")
+
+
+def fit_argv(setting: Setting, task: str, seed: int, out: Path, extra: list[str]) -> list[str]:
     return [
-        sys.executable, "-m", "hispo_pl.cli", "fit", "--config", str(config),
+        sys.executable, "-m", "hispo_pl.cli", "fit", "--config", str(setting.config_for(task)),
         "--data.task", task,
+        "--seed_everything", str(seed),
         "--trainer.logger.init_args.save_dir", str(out / "runs"),
-        "--trainer.logger.init_args.name", run_name(config, task),
-        "--trainer.logger.init_args.version", "0",
+        "--trainer.logger.init_args.name", run_name(setting, task),
+        "--trainer.logger.init_args.version", f"seed{seed}",
+        *setting.overrides,
         *extra,
     ]  # fmt: skip
 
 
-def run_dir(out: Path, config: Path, task: str) -> RunDir:
-    return RunDir(out / "runs" / run_name(config, task) / "version_0")
-
-
-def run_one(config: Path, task: str, out: Path, extra: list[str]) -> dict:
-    run = run_dir(out, config, task)
+def run_one(setting: Setting, task: str, seed: int, out: Path, extra: list[str]) -> dict:
+    run = run_dir(out, setting, task, seed)
     if run.result_file.exists():
         return run.read_result()
-    log = out / "logs" / f"{run_name(config, task)}.log"
+    log = out / "logs" / f"{run_name(setting, task)}-seed{seed}.log"
     log.parent.mkdir(parents=True, exist_ok=True)
     with log.open("w") as fh:
-        proc = subprocess.run(fit_argv(config, task, out, extra), stdout=fh, stderr=fh)
+        proc = subprocess.run(fit_argv(setting, task, seed, out, extra), stdout=fh, stderr=fh)
     if proc.returncode != 0 or not run.result_file.exists():
-        raise RuntimeError(f"{run_name(config, task)} failed (exit {proc.returncode}); see {log}")
+        raise RuntimeError(f"{run.path} failed (exit {proc.returncode}); see {log}")
     return run.read_result()
 
 
-def write_tables(out: Path, configs: list[Path], tasks: list[str], results: dict) -> str:
-    """Success % (mean episode length) per task and config, as markdown and CSV."""
-    names = [c.parent.name for c in configs]
+def collect_results(out: Path, settings: list[Setting], tasks: list[str]) -> dict:
+    """(setting name, task) -> the result dicts of every finished seed under ``out``."""
+    found: dict = {}
+    for setting in settings:
+        for task in tasks:
+            folder = out / "runs" / run_name(setting, task)
+            for result in sorted(folder.glob("seed*/result.json")):
+                found.setdefault((setting.name, task), []).append(RunDir(result.parent))
+    return {key: [r.read_result() for r in runs] for key, runs in found.items()}
+
+
+def write_tables(out: Path, settings: list[Setting], tasks: list[str], results: dict) -> str:
+    """Success % mean ± std over seeds (and mean episode length) per task and setting, as
+    markdown and CSV (one CSV row per run)."""
+    names = [s.name for s in settings]
     lines = [
-        "| task | " + " | ".join(f"{n} success % (length)" for n in names) + " | steps |",
-        "|---|" + "---:|" * (len(names) + 1),
+        "| task | " + " | ".join(f"{n} success % (length)" for n in names) + " | seeds | steps |",
+        "|---|" + "---:|" * (len(names) + 2),
     ]
     rows = []
     for task in tasks:
-        cells, steps = [], ""
-        for config in configs:
-            r = results.get((config, task))
-            if r is None:
+        cells, steps, seeds = [], "", ""
+        for name in names:
+            runs = results.get((name, task), [])
+            if not runs:
                 cells.append("–")
                 continue
-            cells.append(f"{100 * r['success']:.0f} ({r['episode_length']:.0f})")
-            steps = str(int(r["step"]))
-            rows.append({"task": task, "config": config.parent.name, **r})
-        lines.append(f"| {task} | " + " | ".join(cells) + f" | {steps} |")
+            success = [100 * r["success"] for r in runs]
+            length = statistics.fmean(r["episode_length"] for r in runs)
+            spread = f" ± {statistics.pstdev(success):.1f}" if len(runs) > 1 else ""
+            cells.append(f"{statistics.fmean(success):.1f}{spread} ({length:.0f})")
+            steps, seeds = str(int(runs[0]["step"])), str(len(runs))
+            rows += [{"task": task, "setting": name, **r} for r in runs]
+        lines.append(f"| {task} | " + " | ".join(cells) + f" | {seeds} | {steps} |")
     table = "\n".join(lines) + "\n"
     (out / "table.md").write_text(table)
     if rows:
@@ -103,31 +160,39 @@ def main(argv: list[str] | None = None) -> int:
     extra = argv[argv.index("--") + 1 :] if "--" in argv else []
     argv = argv[: argv.index("--")] if "--" in argv else argv
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--config", action="append", type=Path, required=True)
+    parser.add_argument("--config", action="append", required=True)
+    parser.add_argument("--setting", action="append", default=[], help="NAME='--flag value'")
     parser.add_argument("--tasks", required=True, help="comma list of task specs / family names")
+    parser.add_argument("--seeds", default="0", help="comma list of seeds")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--report-only", action="store_true")
     args = parser.parse_args(argv)
+    settings = parse_settings(args.config, args.setting)
     tasks = expand_tasks(args.tasks.split(","))
-    jobs = [(c, t) for t in tasks for c in args.config]
+    seeds = [int(s) for s in args.seeds.split(",")]
     args.out.mkdir(parents=True, exist_ok=True)
-    results: dict = {}
-    start = time.perf_counter()
-    with ThreadPoolExecutor(args.workers) as pool:
-        futures = {pool.submit(run_one, c, t, args.out, extra): (c, t) for c, t in jobs}
-        for done, future in enumerate(as_completed(futures), 1):
-            config, task = futures[future]
-            try:
-                r = results[(config, task)] = future.result()
-                print(
-                    f"[{done}/{len(jobs)}] {run_name(config, task)}: {100 * r['success']:.0f} % "
-                    f"({r['seconds']:.0f} s)  {time.perf_counter() - start:.0f} s elapsed",
-                    flush=True,
-                )
-            except RuntimeError as err:
-                print(f"[{done}/{len(jobs)}] {err}", flush=True)
-    print(write_tables(args.out, args.config, tasks, results))
-    return 0 if len(results) == len(jobs) else 1
+    if not args.report_only:
+        jobs = [(s, t, seed) for t in tasks for s in settings for seed in seeds]
+        start = time.perf_counter()
+        with ThreadPoolExecutor(args.workers) as pool:
+            futures = {pool.submit(run_one, *job, args.out, extra): job for job in jobs}
+            for done, future in enumerate(as_completed(futures), 1):
+                setting, task, seed = futures[future]
+                try:
+                    r = future.result()
+                    print(
+                        f"[{done}/{len(jobs)}] {run_name(setting, task)} seed {seed}: "
+                        f"{100 * r['success']:.0f} % ({r['seconds']:.0f} s)  "
+                        f"{time.perf_counter() - start:.0f} s elapsed",
+                        flush=True,
+                    )
+                except RuntimeError as err:
+                    print(f"[{done}/{len(jobs)}] {err}", flush=True)
+    results = collect_results(args.out, settings, tasks)
+    print(write_tables(args.out, settings, tasks, results))
+    expected = len(settings) * len(tasks) * len(seeds)
+    return 0 if sum(len(v) for v in results.values()) >= expected else 1
 
 
 if __name__ == "__main__":

@@ -68,7 +68,7 @@ class HispoCLI(LightningCLI):
             parser.add_argument(f"--{flag}", type=kind | None, default=None, help=text)
         for dim in ("obs_dim", "action_dim", "goal_dim"):
             parser.link_arguments(f"data.{dim}", f"model.init_args.{dim}", apply_on="instantiate")
-        for name in ("binary_actions", "low_obs", "low_velocity"):  # what the data defines
+        for name in ("binary_actions", "low_obs", "low_velocity", "high_obs"):  # data's choice
             target = f"model.init_args.backbone.{name}"
             parser.link_arguments(f"data.{name}", target, apply_on="instantiate")
 

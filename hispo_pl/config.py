@@ -36,6 +36,9 @@ class BackboneConfig:
             of the relative subgoal). Linked from ``--data.low_inputs``.
         low_velocity: whether the low policy sees the goal-space velocity. Linked from
             ``--data.low_inputs``.
+        high_obs: whether the high (and flat) policy sees the observation; ``False``: the
+            goal-space velocity in its place, so no observation variant reaches it. Linked
+            from ``--data.high_inputs``.
         binary_actions: leading action entries that are buttons (Bernoulli). Linked from the
             data.
     """
@@ -48,6 +51,7 @@ class BackboneConfig:
     low_log_std: float | None = 0.0
     low_obs: bool = True
     low_velocity: bool = False
+    high_obs: bool = True
     binary_actions: int = 0
 
     def __post_init__(self) -> None:

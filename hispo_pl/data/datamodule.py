@@ -12,7 +12,7 @@ from torch.utils.data import DataLoader, IterableDataset
 from ..errors import ConfigError
 from .datasets import EpisodeArrays, load_episodes
 from .sampler import HERConfig, HERSampler, Horizon, MixedSampler, Strategy
-from .tasks import LOW_INPUTS, Task, parse_stream, parse_task
+from .tasks import HIGH_INPUTS, LOW_INPUTS, Task, parse_stream, parse_task
 
 
 class _Batches(IterableDataset):
@@ -69,6 +69,12 @@ class TaskDataModule(L.LightningDataModule):
             observation variant reaches it), ``subgoal`` (the subgoal's features only), or
             ``family``: the family's own choice (PointMaze ``goal``; AntMaze and the game
             mazes ``observation``, whose agents need their body state or depth image).
+        high_inputs: what the high policy (and the flat BC policy) sees besides the features of
+            the goal offset, the position and the goal (linked to the model's ``high_obs``):
+            ``observation`` (the authors'), ``goal`` (the goal-space velocity instead, so an
+            observation variant does not move its inputs), or ``family``: the family's choice
+            (PointMaze ``goal``, whose observation is position and velocity; the others
+            ``observation``).
         holdout: share of each task's episodes never trained on (chosen by episode, with a
             fixed seed): the subspace search, ``L_curr`` and the zero-shot test score on them,
             so that a decision measures how a policy generalises, not how well it memorised.
@@ -95,6 +101,7 @@ class TaskDataModule(L.LightningDataModule):
         holdout: float = 0.1,
         transitions: bool = False,
         low_inputs: Literal["family", "observation", "goal", "subgoal"] = "family",
+        high_inputs: Literal["family", "observation", "goal"] = "family",
     ):
         super().__init__()
         if not 0.0 <= holdout < 1.0:
@@ -141,6 +148,12 @@ class TaskDataModule(L.LightningDataModule):
                 f"got {low_inputs!r}"
             )
         self.low_inputs = low_inputs
+        if high_inputs != "family" and high_inputs not in HIGH_INPUTS:
+            raise ValueError(
+                f"--data.high_inputs must be family or one of {', '.join(HIGH_INPUTS)}, "
+                f"got {high_inputs!r}"
+            )
+        self.high_inputs = high_inputs
         self.transitions = transitions
         self.data: EpisodeArrays | None = None  # every episode of the task
         self.splits: dict[Split, EpisodeArrays] = {}  # "train" and "heldout" parts of data
@@ -186,6 +199,12 @@ class TaskDataModule(L.LightningDataModule):
     def low_velocity(self) -> bool:
         """Whether the low policy sees the goal-space velocity (see ``low_inputs``)."""
         return self._low_inputs()[1]
+
+    @property
+    def high_obs(self) -> bool:
+        """Whether the high policy sees the observation (see ``high_inputs``)."""
+        name = self.high_inputs
+        return HIGH_INPUTS[self.task.env_family.high_inputs if name == "family" else name]
 
     def _low_inputs(self) -> tuple[bool, bool]:
         name = self.task.env_family.low_inputs if self.low_inputs == "family" else self.low_inputs

@@ -40,6 +40,11 @@ LOW_INPUTS: dict[str, tuple[bool, bool]] = {  # name -> (low_obs, low_velocity) 
     "goal": (False, True),  # features(subgoal − pos) + goal-space velocity: goal space only
     "subgoal": (False, False),  # features(subgoal − pos) only (the authors' low policy)
 }
+HighInputs = Literal["observation", "goal"]
+HIGH_INPUTS: dict[str, bool] = {  # name -> high_obs of the backbone
+    "observation": True,  # [features(goal − pos), observation, pos, goal] (the authors')
+    "goal": False,  # [features(goal − pos), goal-space velocity, pos, goal]: goal space only
+}
 
 
 @dataclass(frozen=True)
@@ -59,6 +64,7 @@ class Family:
     binary_actions: int = 0  # leading action entries that are buttons (Bernoulli in the policy)
     step_seconds: float = 0.01  # time between two observations: turns position steps into velocity
     low_inputs: LowInputs = "observation"  # what the low policy sees by default (LOW_INPUTS)
+    high_inputs: HighInputs = "observation"  # what the high policy sees by default (HIGH_INPUTS)
 
 
 def _game_family(
@@ -87,6 +93,7 @@ FAMILIES: dict[str, Family] = {
     "pointmaze": Family(
         name="pointmaze",
         low_inputs="goal",  # a point mass needs no proprioception: its low policy sees goal space
+        high_inputs="goal",  # its observation is position and velocity: goal space says it all
         env_id="PointMaze_{}-v3",
         obs_dim=4,
         action_dim=2,

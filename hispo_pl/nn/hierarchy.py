@@ -19,9 +19,18 @@ Forward = Callable[[str, Tensor], tuple[Tensor, Tensor]]
 """``forward(name, x) -> (mean, log_std)``: how a method runs its head ``name`` on ``x``."""
 
 
-def high_input(observation: Tensor, position: Tensor, goal: Tensor) -> Tensor:
-    """The high (and flat) policy's input: [features(goal − pos), obs, pos, goal]."""
-    return torch.cat([goal_features(goal - position), observation, position, goal], dim=-1)
+def high_input(
+    observation: Tensor, position: Tensor, goal: Tensor, velocity: Tensor | None = None
+) -> Tensor:
+    """The high (and flat) policy's input: [features(goal − pos), obs, pos, goal], or, given
+    ``velocity`` (a goal-space high policy), the velocity in the observation's place."""
+    middle = observation if velocity is None else velocity
+    return torch.cat([goal_features(goal - position), middle, position, goal], dim=-1)
+
+
+def high_input_dim(obs_dim: int, goal_dim: int, high_obs: bool = True) -> int:
+    """Width of :func:`high_input`."""
+    return feature_dim(goal_dim) + (obs_dim if high_obs else goal_dim) + 2 * goal_dim
 
 
 def low_input(
@@ -45,13 +54,13 @@ def low_input_dim(obs_dim: int, goal_dim: int, low_obs: bool, low_velocity: bool
     return feature_dim(goal_dim) + (obs_dim if low_obs else 0) + (goal_dim if low_velocity else 0)
 
 
-def low_velocity_input(wanted: bool, velocity: Tensor | None) -> Tensor | None:
-    """The velocity a low policy with ``low_velocity`` reads (None for one without)."""
+def velocity_input(wanted: bool, velocity: Tensor | None, level: str = "low") -> Tensor | None:
+    """The velocity a level that reads it gets (None for one that does not)."""
     if not wanted:
         return None
     if velocity is None:
         raise ValueError(
-            "this policy's low level reads the goal-space velocity: pass velocity= to act() "
+            f"this policy's {level} level reads the goal-space velocity: pass velocity= to act() "
             "(RolloutEvaluator and module_policy do)"
         )
     return velocity
@@ -83,7 +92,7 @@ class HierarchicalPolicy(nn.Module):
     ):
         super().__init__()
         self.config = config
-        high_dim = feature_dim(goal_dim) + obs_dim + 2 * goal_dim
+        high_dim = high_input_dim(obs_dim, goal_dim, config.high_obs)
         if config.kind == "hbc":
             self.high = head(
                 high_dim,
@@ -125,7 +134,8 @@ class HierarchicalPolicy(nn.Module):
             x = low_input(obs, batch["subgoal"] - pos, self.config.low_obs, velocity)
             return x, batch["action"]
         target = batch["subgoal"] - pos if name == "high" else batch["action"]
-        return high_input(obs, pos, batch["goal"]), target
+        velocity = None if self.config.high_obs else batch["velocity"]
+        return high_input(obs, pos, batch["goal"], velocity), target
 
     def _forward(self, forward: Forward | None) -> Forward:
         return forward or (lambda name, x: self[name](x))
@@ -163,11 +173,12 @@ class HierarchicalPolicy(nn.Module):
         """The deterministic action. A ``forward`` that mixes M anchor-weight vectors at once
         gives actions [M, B, A]: the low policy's other inputs are broadcast to them."""
         forward = self._forward(forward)
-        x = high_input(observation, position, goal)
+        high_velocity = velocity_input(not self.config.high_obs, velocity, "high")
+        x = high_input(observation, position, goal, high_velocity)
         if self.config.kind == "bc":
             return self.policy.act(forward("policy", x)[0])
         offset, _ = forward("high", x)
-        velocity = low_velocity_input(self.config.low_velocity, velocity)
+        velocity = velocity_input(self.config.low_velocity, velocity)
         if offset.dim() > observation.dim():
             observation = observation.expand(*offset.shape[:-1], observation.shape[-1])
             if velocity is not None:
