@@ -118,7 +118,7 @@ def test_the_demo_is_a_two_task_hispo_stream(capsys):
         )
     assert done.value.code == 0
     printed = yaml.safe_load(capsys.readouterr().out)
-    assert printed["data"]["stream"] == ["pointmaze-umaze-N[500]", "pointmaze-umaze-PO[500]"]
+    assert printed["data"]["stream"] == ["pointmaze-umaze-N[500]", "pointmaze-umaze-PA[500]"]
     assert printed["model"]["class_path"] == "hispo_pl.modules.HiSPO"
 
 

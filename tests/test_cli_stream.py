@@ -45,7 +45,8 @@ def test_stream_fit_prints_metrics_logs_and_resumes(tiny_umaze, tmp_path, capsys
     assert results["MEM"] > 0  # a reference model size is passed by the CLI
     # ... that of the single-task HBC with the method config's architecture
     goal_space = dict(low_obs=False, low_velocity=True, high_obs=False)  # PointMaze's inputs
-    reference = HBC(4, 2, backbone=BackboneConfig(**goal_space))
+    stream_width = dict(high_hidden=192)  # configs/streams/pointmaze-1.yaml
+    reference = HBC(4, 2, backbone=BackboneConfig(**goal_space, **stream_width))
     assert results["MEM"] == pytest.approx(results["stored_bytes"] / module_bytes(reference))
     assert f"anchors per subspace: {results['anchors']}" in out
     assert f"tensorboard --logdir {run_dir}" in out

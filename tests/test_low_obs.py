@@ -68,6 +68,8 @@ def test_hispo_stream_without_observation_in_the_low_policy(tiny_umaze, tmp_path
         ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"],
         "--data.low_inputs",
         "subgoal",
+        "--data.high_inputs",
+        "observation",
     )
     assert results["BWT"] == 0.0
     module = GoalConditionedBC.from_checkpoint_file(str(run_dir / "task_02.ckpt"))

@@ -13,7 +13,7 @@ from hispo_pl.config import BackboneConfig
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules import GoalConditionedBC, GrowingPolicy
 from hispo_pl.modules.pnn import PNN
-from hispo_pl.nn.hierarchy import HierarchicalPolicy
+from hispo_pl.nn.hierarchy import HierarchicalPolicy, high_input_dim
 from hispo_pl.nn.mlp import ResidualMLP, feature_dim
 from hispo_pl.nn.progressive import (
     ProgressiveMLP,
@@ -308,7 +308,7 @@ def test_stream_end_to_end(tiny_umaze, tmp_path):
     assert net.high_log_std == 0.0  # the method config fixes it: high head = goal_dim outputs
     assert net.low_log_std == 0.0 and not net.low_obs and net.low_velocity  # goal-space low
     f = feature_dim(hp.goal_dim)
-    high = (f + hp.obs_dim + 2 * hp.goal_dim, net.high_hidden, hp.goal_dim)
+    high = (high_input_dim(hp.obs_dim, hp.goal_dim, net.high_obs), net.high_hidden, hp.goal_dim)
     low = (f + hp.goal_dim, net.low_hidden, hp.action_dim)
     unit = column_parameter_count(*high) + column_parameter_count(*low)
     pair = progressive_parameter_count(2, *high) + progressive_parameter_count(2, *low)
@@ -324,8 +324,9 @@ def test_flat_stream_end_to_end(tiny_umaze, tmp_path):
     )
     assert isinstance(second, PNN) and second.n_columns == 2
     hp = second
+    assert hp.backbone_config.high_obs is False  # PointMaze: the flat policy reads goal space
     shape = (
-        feature_dim(hp.goal_dim) + hp.obs_dim + 2 * hp.goal_dim,
+        high_input_dim(hp.obs_dim, hp.goal_dim, hp.backbone_config.high_obs),
         hp.backbone_config.low_hidden,
         2 * hp.action_dim,
     )
