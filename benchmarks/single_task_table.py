@@ -25,13 +25,13 @@ import argparse
 import csv
 import shlex
 import statistics
-import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
+from hispo_pl.benchmark.launch import execute_run, run_env
 from hispo_pl.data.tasks import FAMILIES, parse_task
 from hispo_pl.rundir import RunDir
 
@@ -87,7 +87,7 @@ def run_dir(out: Path, setting: Setting, task: str, seed: int) -> RunDir:
 
 def fit_argv(setting: Setting, task: str, seed: int, out: Path, extra: list[str]) -> list[str]:
     return [
-        sys.executable, "-m", "hispo_pl.cli", "fit", "--config", str(setting.config_for(task)),
+        "-m", "hispo_pl.cli", "fit", "--config", str(setting.config_for(task)),
         "--data.task", task,
         "--seed_everything", str(seed),
         "--trainer.logger.init_args.save_dir", str(out / "runs"),
@@ -103,12 +103,11 @@ def run_one(setting: Setting, task: str, seed: int, out: Path, extra: list[str])
     if run.result_file.exists():
         return run.read_result()
     log = out / "logs" / f"{run_name(setting, task)}-seed{seed}.log"
-    log.parent.mkdir(parents=True, exist_ok=True)
-    with log.open("w") as fh:
-        proc = subprocess.run(fit_argv(setting, task, seed, out, extra), stdout=fh, stderr=fh)
-    if proc.returncode != 0 or not run.result_file.exists():
-        raise RuntimeError(f"{run.path} failed (exit {proc.returncode}); see {log}")
-    return run.read_result()
+    argv = fit_argv(setting, task, seed, out, extra)
+    done = execute_run(argv, str(log), str(run.result_file), env=run_env(1))
+    if done["results"] is None:
+        raise RuntimeError(f"{run.path} failed (exit {done['returncode']}); see {log}")
+    return done["results"]
 
 
 def collect_results(out: Path, settings: list[Setting], tasks: list[str]) -> dict:
