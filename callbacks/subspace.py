@@ -45,10 +45,8 @@ class AnchorExtension(L.Callback):
         if stage != "fit" or module.task_index == 0:
             return
         for name in module.subspace_names:
-            if module.transferred(name):  # ZeroShotTransfer chose its weights
-                continue
-            if module.n_anchors(name) <= module.task_index:  # not extended for this task yet
-                module.add_anchor(name)
+            if not module.transferred(name) and not module.grown(name):
+                module.add_anchor(name)  # (transferred: ZeroShotTransfer chose its weights)
 
 
 @dataclass

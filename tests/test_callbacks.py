@@ -193,6 +193,11 @@ def test_anchor_extension_adds_once_per_task(first_task, tmp_path):
     assert [module.n_anchors(n) for n in SUBSPACES] == [2, 2]
     ext.setup(trainer, module, "validate")
     assert [module.n_anchors(n) for n in SUBSPACES] == [2, 2]
+    # task 3 after pruning elsewhere: fewer anchors than tasks, still one extension per task
+    module.task_index = 3
+    ext.setup(trainer, module, "fit")
+    ext.setup(trainer, module, "fit")
+    assert [module.n_anchors(n) for n in SUBSPACES] == [3, 3]
 
 
 def test_kept_anchors_grow_the_search_to_the_previous_simplex(first_task, tmp_path, monkeypatch):

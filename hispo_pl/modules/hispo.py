@@ -42,6 +42,7 @@ class SubspacePolicy(Protocol):
     def set_task_alpha(self, task: int, subspace: str, alpha: Tensor) -> None: ...
     def transfer(self, subspace: str, alpha: Tensor) -> None: ...
     def transferred(self, subspace: str) -> bool: ...
+    def grown(self, subspace: str) -> bool: ...
     def prediction_distances(
         self, subspace: str, alpha: Tensor, batch: dict[str, Tensor]
     ) -> dict[str, Tensor]: ...
@@ -115,6 +116,9 @@ class HiSPO(GoalConditionedBC):
             self.register_buffer(f"task_alpha_{name}", torch.zeros(0, 1))
         # task -> subspaces transferred zero-shot (decided at the task's start, so not stored)
         self._transferred: dict[int, set[str]] = {}
+        # subspace -> the task its newest anchor was added for (in this process; a resumed
+        # task starts from the previous task's weights, which were not grown for it yet)
+        self._grown_for: dict[str, int] = {}
 
     def _nets(self, subspace: str) -> list[nn.Module]:
         """The subspace networks of the policies a subspace holds (they grow together)."""
@@ -143,6 +147,11 @@ class HiSPO(GoalConditionedBC):
         k = self.n_anchors(subspace)
         self.scores[subspace] = nn.Parameter(torch.zeros(k, device=self.scores[subspace].device))
         self._set_task_alphas(subspace, F.pad(self.task_alphas(subspace), (0, 1)))
+        self._grown_for[subspace] = self.task_index
+
+    def grown(self, subspace: str) -> bool:
+        """Whether :meth:`add_anchor` already grew ``subspace`` for the current task."""
+        return self._grown_for.get(subspace) == self.task_index
 
     def prune_last_anchor(self, subspace: str) -> None:
         """Drop the newest anchor of a subspace; stored weights lose their last coordinate."""
