@@ -273,6 +273,8 @@ def test_write_report_from_disk_and_report_only(tmp_path, capsys):
     for name in ("table.md", "table.csv", "runtime.csv", "perf_vs_memory.png"):
         assert f"wrote {tmp_path / name}" in out
         assert (tmp_path / name).stat().st_size > 0
+    heatmaps = sorted(p.name for p in tmp_path.glob("success_*.png"))  # one per method
+    assert heatmaps == ["success_bc-ft1.png", "success_hispo.png", "success_scn.png"]
     runtime = list(csv.DictReader((tmp_path / "runtime.csv").open()))
     assert runtime[1] == {"method": "hispo", "seed": "0", "minutes": "2.0", "steps_per_task": ""}
     assert runtime[3]["steps_per_task"] == "5"

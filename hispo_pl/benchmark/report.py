@@ -7,10 +7,12 @@ import json
 from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
+
 from ..io import atomic_write_text
 from ..rundir import RunDir
 from .plan import PLAN_FILE, RUNS_DIR
-from .records import MethodRow, aggregate, load_records
+from .records import MethodRow, RunRecord, aggregate, load_records, results_matrix
 from .tables import decisions_markdown, runtime_csv, table_csv, table_markdown
 
 
@@ -48,6 +50,29 @@ def plot_perf_vs_memory(rows: Sequence[MethodRow], path: Path, stream: str = "")
         ax.legend(fontsize=8, loc="best")
     fig.savefig(path, dpi=150, bbox_inches="tight")
     return True
+
+
+def plot_success_matrices(records: Sequence[RunRecord], out: Path) -> list[Path]:
+    """One heatmap per method, ``success_<method>.png``: R averaged over its seeds (the
+    figure the paper's appendix shows per stream). Nothing without matplotlib."""
+    try:
+        from ..figures import success_matrix_figure
+    except ImportError:
+        return []
+    by_method: dict[str, list[np.ndarray]] = {}
+    for record in records:
+        by_method.setdefault(record.method, []).append(results_matrix(record.results))
+    written = []
+    for method, matrices in sorted(by_method.items()):
+        if len({m.shape for m in matrices}) != 1:
+            continue  # seeds of different streams: no mean to show
+        mean = np.mean(matrices, axis=0)
+        fig = success_matrix_figure(mean.tolist())
+        fig.axes[0].set_title(f"{method}: R, mean of {len(matrices)} seed(s)", fontsize=9)
+        path = out / f"success_{method}.png"
+        fig.savefig(path, dpi=110, bbox_inches="tight")
+        written.append(path)
+    return written
 
 
 def unfinished_runs(out: Path) -> list[tuple[str, int, str]]:
@@ -111,6 +136,7 @@ def write_report(out: Path, stream: str | None = None) -> list[Path]:
         written.append(out / "decisions.md")
     if plot_perf_vs_memory(rows, out / "perf_vs_memory.png", stream):
         written.append(out / "perf_vs_memory.png")
+        written += plot_success_matrices(records, out)
     return written
 
 
