@@ -15,13 +15,8 @@ from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.hbc import GoalConditionedBC
 from hispo_pl.modules.hilow import HiLOW
 from hispo_pl.modules.hispo import SUBSPACES, HiSPO, SubspacePolicy
-from hispo_pl.nn.subspace import (
-    LowRankSubspaceLinear,
-    SubspaceLinear,
-    low_rank_,
-    sample_dirichlet,
-    subspace_layers,
-)
+from hispo_pl.nn.lowrank import LowRankSubspaceLinear, low_rank_
+from hispo_pl.nn.subspace import SubspaceLinear, sample_dirichlet, subspace_layers
 
 IN, OUT, RANK, K, M, B = 12, 10, 3, 4, 5, 7
 SIZES = {"obs_dim": 4, "action_dim": 2, "backbone": BackboneConfig(high_hidden=8, low_hidden=16)}

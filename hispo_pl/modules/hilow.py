@@ -3,7 +3,7 @@
 
 Both subspaces keep HiSPO's structure, search and pruning; only what an anchor costs changes.
 Every linear weight of an anchor k ≥ 2 is ``W_k = W_1 + A_k B_k``
-(:class:`~hispo_pl.nn.subspace.LowRankSubspaceLinear`), so a kept anchor stores
+(:class:`~hispo_pl.nn.lowrank.LowRankSubspaceLinear`), so a kept anchor stores
 ``r·(in + out)`` values per layer instead of ``in·out``, and MEM grows more slowly.
 """
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import Literal
 
 from ..config import BackboneConfig, OptimConfig
-from ..nn.subspace import low_rank_
+from ..nn.lowrank import low_rank_
 from .hispo import HiSPO
 
 
