@@ -33,6 +33,15 @@ DEFAULT_TASK = "pointmaze-umaze-N[500]"
 Split = Literal["train", "heldout"]
 
 
+def _input_choice(flag: str, value: str, choices: dict) -> str:
+    """``value`` of ``--data.<flag>`` if it is ``family`` or one of ``choices``."""
+    if value != "family" and value not in choices:
+        raise ValueError(
+            f"--data.{flag} must be family or one of {', '.join(choices)}, got {value!r}"
+        )
+    return value
+
+
 class TaskDataModule(L.LightningDataModule):
     """Expert data of one task, relabelled by HER, as batches of ``batch_size``.
 
@@ -142,18 +151,8 @@ class TaskDataModule(L.LightningDataModule):
         self.seed = seed
         self.replay = replay
         self.holdout = holdout
-        if low_inputs != "family" and low_inputs not in LOW_INPUTS:
-            raise ValueError(
-                f"--data.low_inputs must be family or one of {', '.join(LOW_INPUTS)}, "
-                f"got {low_inputs!r}"
-            )
-        self.low_inputs = low_inputs
-        if high_inputs != "family" and high_inputs not in HIGH_INPUTS:
-            raise ValueError(
-                f"--data.high_inputs must be family or one of {', '.join(HIGH_INPUTS)}, "
-                f"got {high_inputs!r}"
-            )
-        self.high_inputs = high_inputs
+        self.low_inputs = _input_choice("low_inputs", low_inputs, LOW_INPUTS)
+        self.high_inputs = _input_choice("high_inputs", high_inputs, HIGH_INPUTS)
         self.transitions = transitions
         self.data: EpisodeArrays | None = None  # every episode of the task
         self.splits: dict[Split, EpisodeArrays] = {}  # "train" and "heldout" parts of data
@@ -203,8 +202,8 @@ class TaskDataModule(L.LightningDataModule):
     @property
     def high_obs(self) -> bool:
         """Whether the high policy sees the observation (see ``high_inputs``)."""
-        name = self.high_inputs
-        return HIGH_INPUTS[self.task.env_family.high_inputs if name == "family" else name]
+        family = self.task.env_family.high_inputs
+        return HIGH_INPUTS[family if self.high_inputs == "family" else self.high_inputs]
 
     def _low_inputs(self) -> tuple[bool, bool]:
         name = self.task.env_family.low_inputs if self.low_inputs == "family" else self.low_inputs

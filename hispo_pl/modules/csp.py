@@ -22,8 +22,7 @@ from torch import Tensor, nn
 from ..config import BackboneConfig, OptimConfig
 from ..nn import eval_mode
 from ..nn.critic import CriticConfig, SubspaceCritic
-from ..nn.hierarchy import high_input
-from ..nn.mlp import feature_dim
+from ..nn.hierarchy import high_input, high_input_dim
 from ..nn.subspace import AnchorInit, sample_dirichlet
 from .cspo import CSPO, POLICY
 from .hispo import SubspacePolicy
@@ -126,7 +125,7 @@ class CSP(CSPO):
     @property
     def state_dim(self) -> int:
         """Width of the critic's state input (the high policy's inputs)."""
-        return feature_dim(self.goal_dim) + self.obs_dim + 2 * self.goal_dim
+        return high_input_dim(self.obs_dim, self.goal_dim)
 
     def _new_critic(self, alpha_dim: int) -> SubspaceCritic:
         return SubspaceCritic(self.state_dim, self.action_dim, alpha_dim, self.critic_config.hidden)
