@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
 
-from .data.tasks import GAME_FAMILIES, Task, parse_task
+from .data.tasks import Task, parse_task
 from .envs.videogame.layouts import (
     AMAZEVILLE_MAP,
     HIGH_BLOCK,
@@ -197,7 +197,7 @@ def draw_maze(ax: Axes, task: str | Task) -> None:
     points (triangles / stars) or segments (lines). The variant changes nothing visible."""
     task = parse_task(task)
     ax.set_facecolor(FLOOR)
-    if task.family in GAME_FAMILIES:
+    if task.env_family.game:
         _draw_game_maze(ax, task)
     else:
         _draw_robotics_maze(ax, task)

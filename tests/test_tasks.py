@@ -113,6 +113,23 @@ def test_grammar_lists_all_families_and_variants():
             assert maze in GRAMMAR
 
 
+def test_every_family_names_its_expert_and_kind():
+    """Data generation, the env registry and drawing read these fields instead of names."""
+    from hispo_pl.data.generation import expert_class
+
+    experts = {f: expert_class(f"{f}-{next(iter(fam.mazes))}") for f, fam in FAMILIES.items()}
+    assert {f: c.__name__ for f, c in experts.items()} == {
+        "pointmaze": "PointMazeExpert",
+        "antmaze": "AntMazeExpert",
+        "amazeville": "GameExpert",
+        "simpletown": "GameExpert",
+    }
+    assert all(hasattr(c, "act") and hasattr(c, "action_noise") for c in experts.values())
+    assert [f for f, fam in FAMILIES.items() if fam.expert_reads_weights] == ["antmaze"]
+    assert [f for f, fam in FAMILIES.items() if fam.game] == ["amazeville", "simpletown"]
+    assert Task("amazeville", "HOOO").gym_id == "hispo_pl/AmazeVille_HOOO-v0"
+
+
 def test_game_specs_default_to_the_papers_episode_counts():
     assert parse_task("amazeville-HXOO") == Task("amazeville", "HXOO", "N", 100)
     assert parse_task("simpletown-OXO") == Task("simpletown", "OXO", "N", 250)

@@ -5,6 +5,7 @@ one Minari dataset that is moved into place only when complete."""
 from __future__ import annotations
 
 import contextlib
+import importlib
 import json
 import os
 import shutil
@@ -21,7 +22,7 @@ from .datasets import (
     default_episodes,
     local_dataset_id,
 )
-from .tasks import GAME_FAMILIES, Task, parse_task
+from .tasks import Task, parse_task
 
 DEFAULT_SEED = 0
 
@@ -125,27 +126,16 @@ def collect_game_episode(env, expert, rng: np.random.Generator, seed: int, steps
 
 
 def expert_class(name: str | Task) -> type:
-    """The expert class of a maze's family (its class attributes hold the collection noise)."""
-    family = parse_task(name).family
-    if family == "pointmaze":
-        from ..envs.experts import PointMazeExpert
-
-        return PointMazeExpert
-    if family == "antmaze":
-        from ..envs.experts import AntMazeExpert
-
-        return AntMazeExpert
-    if family in GAME_FAMILIES:
-        from ..envs.videogame.expert import GameExpert
-
-        return GameExpert
-    raise NotImplementedError(f"no expert for the {family!r} family")
+    """The expert class of a maze's family (its class attributes hold the collection noise).
+    Imported here, when data are made, so that reading data never imports an expert."""
+    module, _, cls = parse_task(name).env_family.expert.partition(":")
+    return getattr(importlib.import_module(module), cls)
 
 
 def make_expert(name: str, env, expert_weights: str | None = None):
     """The expert of a dataset family (``expert_weights``: the ant policy's file)."""
     cls = expert_class(name)
-    if parse_task(name).family == "antmaze":
+    if parse_task(name).env_family.expert_reads_weights:
         return cls(env, expert_weights)
     return cls(env)
 
@@ -238,7 +228,7 @@ def generate_dataset(
     elif problem != "missing":  # cut short by a kill while it was written: rebuild it
         shutil.rmtree(final)
     steps = task.defaults.max_episode_steps
-    game = task.family in GAME_FAMILIES
+    game = task.env_family.game
     env = make_env(name) if game else make_env(name, continuing_task=True, reset_target=True)
     expert = make_expert(name, env, expert_weights)
     staging = dataset_path("") / ".staging" / f"{name}-seed{seed}-noise{noise}"

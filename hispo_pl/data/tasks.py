@@ -49,7 +49,8 @@ HIGH_INPUTS: dict[str, bool] = {  # name -> high_obs of the backbone
 
 @dataclass(frozen=True)
 class Family:
-    """An environment family (PointMaze, AntMaze) and everything that differs between them."""
+    """An environment family (PointMaze, AntMaze, the game mazes) and everything that differs
+    between them, so that no code elsewhere tests a family's name."""
 
     name: str
     env_id: str  # format string over the maze's env_name
@@ -65,6 +66,9 @@ class Family:
     step_seconds: float = 0.01  # time between two observations: turns position steps into velocity
     low_inputs: LowInputs = "observation"  # what the low policy sees by default (LOW_INPUTS)
     high_inputs: HighInputs = "observation"  # what the high policy sees by default (HIGH_INPUTS)
+    expert: str = ""  # "module:Class" of the data-collecting expert (imported when needed)
+    expert_reads_weights: bool = False  # the expert's policy comes from a weights file
+    game: bool = False  # a video-game maze: own env class and drawing, episodes end at the goal
 
 
 def _game_family(
@@ -86,6 +90,8 @@ def _game_family(
         default_episodes=episodes,
         binary_actions=6,
         step_seconds=0.1,  # decisions at 10 Hz
+        expert="hispo_pl.envs.videogame.expert:GameExpert",
+        game=True,
     )
 
 
@@ -94,6 +100,7 @@ FAMILIES: dict[str, Family] = {
         name="pointmaze",
         low_inputs="goal",  # a point mass needs no proprioception: its low policy sees goal space
         high_inputs="goal",  # its observation is position and velocity: goal space says it all
+        expert="hispo_pl.envs.experts:PointMazeExpert",
         env_id="PointMaze_{}-v3",
         obs_dim=4,
         action_dim=2,
@@ -118,6 +125,8 @@ FAMILIES: dict[str, Family] = {
             "large": MazeDefaults("Large", 1000, waysteps=15, her_temperature=50.0),
         },
         env_kwargs={"include_cfrc_ext_in_observation": False},
+        expert="hispo_pl.envs.experts:AntMazeExpert",
+        expert_reads_weights=True,
         step_seconds=0.05,  # 5 MuJoCo steps of 0.01 s per action
     ),
     "amazeville": _game_family(
@@ -135,8 +144,6 @@ FAMILIES: dict[str, Family] = {
         episodes=250,
     ),
 }
-
-GAME_FAMILIES = ("amazeville", "simpletown")
 
 DEFAULT_EPISODES = 500
 
@@ -191,7 +198,7 @@ class Task:
         """The Gymnasium id of the task as hispo-pl evaluates it (registered on ``import
         hispo_pl.envs``): ``hispo_pl/PointMaze_UMaze-PO-v3`` for a maze variant; the game mazes,
         which have only the normal variant, keep their own id."""
-        if self.family in GAME_FAMILIES:
+        if self.env_family.game:
             return self.env_id
         name, version = self.env_id.rsplit("-v", 1)
         return f"hispo_pl/{name}-{self.variant}-v{version}"

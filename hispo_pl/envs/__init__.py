@@ -6,7 +6,7 @@ import os
 
 import gymnasium as gym
 
-from ..data.tasks import FAMILIES, GAME_FAMILIES, Task, parse_task
+from ..data.tasks import FAMILIES, Task, parse_task
 from .wrappers import VariantWrapper
 
 _robotics_registered = False
@@ -23,7 +23,7 @@ def register_tasks() -> None:
                 task = Task(family, maze, variant)
                 if task.gym_id in gym.registry:
                     continue
-                game = family in GAME_FAMILIES
+                game = fam.game
                 gym.register(
                     id=task.gym_id,
                     entry_point=(
