@@ -16,13 +16,13 @@ import argparse
 import torch
 
 from hispo_pl.data.datamodule import TaskDataModule
-from hispo_pl.data.tasks import parse_task
 from hispo_pl.decisions import extended_subspace_candidates
 from hispo_pl.evaluation import RolloutEvaluator, module_policy
 from hispo_pl.modules import GoalConditionedBC
 from hispo_pl.nn import eval_mode
 from hispo_pl.rundir import RunDir, task_label
 from hispo_pl.search import race_subspace
+from hispo_pl.tasks import parse_task
 
 
 def main() -> None:

@@ -32,8 +32,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hispo_pl.benchmark.launch import execute_run, run_env
-from hispo_pl.data.tasks import FAMILIES, parse_task
 from hispo_pl.rundir import RunDir
+from hispo_pl.tasks import FAMILIES, parse_task
 
 
 @dataclass(frozen=True)

@@ -105,8 +105,8 @@ def _worker(path: str, args: argparse.Namespace, conn) -> None:
     from hispo_pl.data.datamodule import TaskDataModule
     from hispo_pl.data.datasets import load_episodes
     from hispo_pl.data.sampler import HERConfig, HERSampler
-    from hispo_pl.data.tasks import parse_task
     from hispo_pl.nn import fast
+    from hispo_pl.tasks import parse_task
 
     warnings.filterwarnings("ignore")
     logging.getLogger("lightning.pytorch").setLevel(logging.ERROR)

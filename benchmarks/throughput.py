@@ -21,8 +21,8 @@ import torch
 from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.data.datasets import load_episodes
 from hispo_pl.data.sampler import HERConfig, HERSampler
-from hispo_pl.data.tasks import parse_task
 from hispo_pl.modules import BC, HBC
+from hispo_pl.tasks import parse_task
 
 
 def rate(fn, n: int, warmup: int = 10) -> float:

@@ -6,8 +6,8 @@ from __future__ import annotations
 import lightning as L
 from typing_extensions import override
 
-from ..data.tasks import Task, parse_task
 from ..evaluation import RolloutEvaluator, RolloutResult, module_policy
+from ..tasks import Task, parse_task
 
 
 class RolloutEvaluation(L.Callback):

@@ -133,8 +133,8 @@ def load_checkpoint_policy(
 
 def evaluate_main(argv: list[str]) -> int:
     """``hispo-pl evaluate``: any checkpoint on any task, seen or not."""
-    from .data.tasks import parse_task
     from .evaluation import RolloutEvaluator, module_policy
+    from .tasks import parse_task
 
     parser = argparse.ArgumentParser(
         prog="hispo-pl evaluate", description="Roll out a checkpoint's policy on a task"
@@ -180,7 +180,7 @@ def evaluate_main(argv: list[str]) -> int:
 def expand_render_tasks(names: list[str]) -> list:
     """Task specs, where a bare family name (``amazeville``, ``simpletown``) stands for every
     maze of that family, so one word draws a whole game."""
-    from .data.tasks import FAMILIES, parse_task
+    from .tasks import FAMILIES, parse_task
 
     specs: list[str] = []
     for name in names:
@@ -191,7 +191,7 @@ def expand_render_tasks(names: list[str]) -> list:
 def render_main(argv: list[str]) -> int:
     """``hispo-pl render``: mazes from above, optionally with a dataset's or a policy's paths."""
     from .data.datasets import DatasetNotFoundError
-    from .data.tasks import TaskSpecError
+    from .tasks import TaskSpecError
 
     parser = argparse.ArgumentParser(
         prog="hispo-pl render",

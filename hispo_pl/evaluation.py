@@ -10,10 +10,10 @@ import torch
 from tqdm.auto import tqdm
 
 from .data.sampler import position_velocity
-from .data.tasks import Task, parse_task
 from .envs import agent_flipped, make_env
 from .envs.mazes import free_cells, maze_array
 from .nn import eval_mode
+from .tasks import Task, parse_task
 
 PolicyFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
 """(observation [B, obs], position [B, 2], goal [B, 2], velocity [B, 2]) -> action [B, act],

@@ -25,12 +25,12 @@ import torch
 from .config import upgrade_fingerprint
 from .console import lightning_notices_once, quiet_lightning_notices, say, task_header, task_summary
 from .data.datamodule import TaskDataModule
-from .data.tasks import Task, parse_task
 from .errors import Interrupted, RunDirError
 from .metrics import continual_metrics, memory_ratio, module_bytes, results_row_table
 from .modules.hispo import SubspacePolicy
 from .rundir import RunDir, task_label
 from .stream_report import log_stream_end, log_task_end
+from .tasks import Task, parse_task
 
 
 def _sampler_generators(trainer: L.Trainer) -> list[np.random.Generator]:

@@ -22,7 +22,6 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
 
-from .data.tasks import Task, parse_task
 from .envs.videogame.layouts import (
     AMAZEVILLE_MAP,
     HIGH_BLOCK,
@@ -31,6 +30,7 @@ from .envs.videogame.layouts import (
     Layout,
     layout,
 )
+from .tasks import Task, parse_task
 
 if TYPE_CHECKING:
     from .evaluation import PolicyFn

@@ -14,7 +14,6 @@ from hispo_pl.cli import main
 from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.data.datasets import episodes_to_arrays
 from hispo_pl.data.generation import collect_episode
-from hispo_pl.data.tasks import VARIANTS, parse_task, transform_action, transform_observation
 from hispo_pl.envs import agent_flipped, make_env
 from hispo_pl.envs.experts import (
     ANT_ACTION_SCALE,
@@ -27,6 +26,7 @@ from hispo_pl.envs.experts import (
     ant_expert_weights_path,
 )
 from hispo_pl.evaluation import RolloutEvaluator
+from hispo_pl.tasks import VARIANTS, parse_task, transform_action, transform_observation
 
 RESET = {"reset_cell": np.array([1, 1]), "goal_cell": np.array([3, 1])}
 STEPS = 15

@@ -217,7 +217,7 @@ def test_packaged_configs_are_found_outside_a_checkout(tmp_path, monkeypatch):
 
 
 def test_stream_help_names_every_stream(capsys):
-    from hispo_pl.data.tasks import STREAMS
+    from hispo_pl.tasks import STREAMS
 
     with pytest.raises(SystemExit):
         main(["fit", "--help"])

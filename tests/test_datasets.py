@@ -360,7 +360,7 @@ def test_one_dataset_for_a_multi_maze_stream_is_refused():
 
 def test_each_maze_reads_the_dataset_named_for_it(tiny_umaze):
     from hispo_pl.data.datamodule import TaskDataModule
-    from hispo_pl.data.tasks import parse_task
+    from hispo_pl.tasks import parse_task
 
     dm = TaskDataModule(stream="pointmaze-1", datasets={"pointmaze-medium": "elsewhere/medium-v0"})
     assert dm.dataset_for(parse_task("pointmaze-medium-IO")) == "elsewhere/medium-v0"

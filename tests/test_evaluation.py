@@ -7,11 +7,11 @@ import pytest
 import torch
 
 from hispo_pl import evaluation
-from hispo_pl.data.tasks import parse_task, transform_action
 from hispo_pl.envs import make_env
 from hispo_pl.envs.experts import PointMazeExpert
 from hispo_pl.envs.mazes import maze_array
 from hispo_pl.evaluation import RolloutEvaluator, RolloutResult, start_goal_cells
+from hispo_pl.tasks import parse_task, transform_action
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,6 @@ from matplotlib.patches import Rectangle
 from hispo_pl.cli import main
 from hispo_pl.commands import expand_render_tasks
 from hispo_pl.config import BackboneConfig
-from hispo_pl.data.tasks import FAMILIES, parse_task
 from hispo_pl.envs.videogame.layouts import layout
 from hispo_pl.render import (
     Overlay,
@@ -23,6 +22,7 @@ from hispo_pl.render import (
     maze_figure,
     rollout_paths,
 )
+from hispo_pl.tasks import FAMILIES, parse_task
 
 GAME_TASKS = [f"{g}-{m}" for g in ("amazeville", "simpletown") for m in FAMILIES[g].mazes]
 DRAWN_AS = {"wall": "#", "door-closed": "#", "block-high": "G", "block-low": "G"}

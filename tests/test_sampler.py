@@ -8,7 +8,7 @@ import torch
 
 from hispo_pl.data.datasets import EpisodeArrays, goal_segment_ends
 from hispo_pl.data.sampler import HERConfig, HERSampler, relabel_indices
-from hispo_pl.data.tasks import parse_task, transform_observation
+from hispo_pl.tasks import parse_task, transform_observation
 
 LENGTHS = [2, 7, 60, 400, 3, 150]  # rows per episode (T + 1)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hispo_pl.data.tasks import (
+from hispo_pl.tasks import (
     DEFAULT_EPISODES,
     FAMILIES,
     GRAMMAR,

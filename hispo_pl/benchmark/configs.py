@@ -50,7 +50,7 @@ def configured_max_steps(configs: Sequence[Path], overrides: Sequence[str] = ())
 def datasets_needed(configs: Sequence[Path], overrides: Sequence[str] = ()) -> dict[str, int]:
     """Our local maze datasets a run reads (``pointmaze-umaze`` → episodes it needs); empty
     when ``data.dataset`` names another Minari dataset or no stream is configured."""
-    from ..data.tasks import parse_stream
+    from ..tasks import parse_stream
 
     stream = configured_value(configs, overrides, "data.stream")
     if not stream or configured_value(configs, overrides, "data.dataset"):

@@ -10,9 +10,9 @@ import torch
 from torch.utils.data import DataLoader, IterableDataset
 
 from ..errors import ConfigError
+from ..tasks import HIGH_INPUTS, LOW_INPUTS, Task, parse_stream, parse_task
 from .datasets import EpisodeArrays, load_episodes
 from .sampler import HERConfig, HERSampler, Horizon, MixedSampler, Strategy
-from .tasks import HIGH_INPUTS, LOW_INPUTS, Task, parse_stream, parse_task
 
 
 class _Batches(IterableDataset):

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
-from .tasks import (
+from ..tasks import (
     FAMILIES,
     Task,
     parse_task,

@@ -14,7 +14,10 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
+from ..envs import agent_flipped, make_env
+from ..envs.mazes import free_cells, maze_array
 from ..errors import UserError
+from ..tasks import Task, parse_task
 from .datasets import (
     NAMESPACE,
     dataset_path,
@@ -22,7 +25,6 @@ from .datasets import (
     default_episodes,
     local_dataset_id,
 )
-from .tasks import Task, parse_task
 
 DEFAULT_SEED = 0
 
@@ -62,8 +64,6 @@ def collect_episode(env, expert, rng: np.random.Generator, seed: int, noise: flo
     drawn by the env whenever the current one is reached. An episode in which the agent flips
     over (:func:`~hispo_pl.envs.agent_flipped`, the check evaluation uses) is cut at that step:
     its clean prefix is kept and ``flipped`` is set. Returns a dict of arrays."""
-    from ..envs import agent_flipped
-    from ..envs.mazes import free_cells, maze_array
 
     cells = free_cells(maze_array(env))
     i, j = rng.choice(len(cells), size=2, replace=False)
@@ -205,7 +205,6 @@ def generate_dataset(
     import minari
     from minari.data_collector import EpisodeBuffer
 
-    from ..envs import make_env
 
     task = parse_task(name)
     name = task.dataset_name

@@ -6,7 +6,7 @@ import os
 
 import gymnasium as gym
 
-from ..data.tasks import FAMILIES, Task, parse_task
+from ..tasks import FAMILIES, Task, parse_task
 from .wrappers import VariantWrapper
 
 _robotics_registered = False

@@ -5,7 +5,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from ..data.tasks import Task, transform_observation, untransform_action
+from ..tasks import Task, transform_observation, untransform_action
 
 
 class VariantWrapper(gym.Wrapper):

@@ -13,7 +13,7 @@ from typing import Literal
 
 import numpy as np
 
-from ..errors import UserError
+from .errors import UserError
 
 VARIANTS: dict[str, str] = {
     "N": "normal: no change",
