@@ -209,6 +209,22 @@ def _arrays(dataset_id: str) -> EpisodeArrays:
     return episodes_to_arrays(minari.load_dataset(dataset_id).iterate_episodes())
 
 
+def test_a_task_reads_its_episodes_once(tiny_umaze, monkeypatch):
+    """``prepare_data`` only makes sure the dataset exists; ``setup`` reads the episodes."""
+    from hispo_pl.data import datasets
+    from hispo_pl.data.datamodule import TaskDataModule
+
+    reads = []
+    real = datasets.episodes_to_arrays
+    monkeypatch.setattr(datasets, "episodes_to_arrays", lambda eps: reads.append(1) or real(eps))
+    dm = TaskDataModule(task=f"pointmaze-umaze-N[{TINY_EPISODES}]", holdout=0.0)
+    dm.prepare_data()
+    assert reads == []
+    dm.setup("fit")
+    assert reads == [1]
+    assert np.array_equal(dm.data.positions, tiny_umaze.positions)
+
+
 def test_existing_dataset_is_not_regenerated(tiny_umaze, monkeypatch):
     def boom(*args, **kwargs):
         raise AssertionError("collected again")

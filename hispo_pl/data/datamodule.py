@@ -11,7 +11,7 @@ from torch.utils.data import DataLoader, IterableDataset
 
 from ..errors import ConfigError
 from ..tasks import HIGH_INPUTS, LOW_INPUTS, Task, parse_stream, parse_task
-from .datasets import EpisodeArrays, load_episodes
+from .datasets import EpisodeArrays, load_episodes, open_dataset
 from .sampler import HERConfig, HERSampler, Horizon, MixedSampler, Strategy
 
 
@@ -220,7 +220,7 @@ class TaskDataModule(L.LightningDataModule):
         return self.datasets.get(task.dataset_name) or self.dataset or task
 
     def prepare_data(self) -> None:
-        load_episodes(self.dataset_for(self.task))  # generates our local data on first use
+        open_dataset(self.dataset_for(self.task))  # makes our local data on first use
 
     def setup(self, stage: str | None = None) -> None:
         if self.data is None:

@@ -178,6 +178,14 @@ def load_episodes(source: str | Task, *, generate_if_missing: bool = True) -> Ep
     ``source`` is a task (spec), or a Minari id such as ``D4RL/pointmaze/umaze-v2`` which is
     downloaded when online. Variants are not applied here: see :meth:`EpisodeArrays.for_task`.
     """
+    ds, episodes = open_dataset(source, generate_if_missing=generate_if_missing)
+    return episodes_to_arrays(ds.iterate_episodes(episodes))
+
+
+def open_dataset(source: str | Task, *, generate_if_missing: bool = True):
+    """The Minari dataset of ``source`` (see :func:`load_episodes`), made or downloaded if
+    missing, and the episode indices a task reads (``None``: all), without reading any episode:
+    what a data module's ``prepare_data`` needs."""
     import minari
 
     if isinstance(source, Task) or "/" not in source:
@@ -199,7 +207,7 @@ def load_episodes(source: str | Task, *, generate_if_missing: bool = True) -> Ep
                 f"{ds.total_episodes}; regenerate it with\n  hispo-pl data generate "
                 f"{task.dataset_name} --episodes {task.episodes} --overwrite"
             )
-        return episodes_to_arrays(ds.iterate_episodes(range(task.episodes)))
+        return ds, range(task.episodes)
     dataset_id = source
     if not dataset_exists(dataset_id):
         try:
@@ -220,7 +228,7 @@ def load_episodes(source: str | Task, *, generate_if_missing: bool = True) -> Ep
             ) from err
     else:
         ds = minari.load_dataset(dataset_id)
-    return episodes_to_arrays(ds.iterate_episodes())
+    return ds, None
 
 
 def dataset_stats(dataset_id: str) -> dict:
