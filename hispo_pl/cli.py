@@ -26,6 +26,7 @@ import torch
 from lightning.pytorch.cli import LightningCLI
 
 from .commands import data_main, evaluate_main, flip_note, render_main, set_num_threads
+from .console import print_stream_results
 from .data.datamodule import TaskDataModule
 from .errors import Interrupted, UserError
 from .modules.hbc import GoalConditionedBC
@@ -224,37 +225,6 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
     results = loop.run()
     results["run_dir"] = str(run_dir)
     return results
-
-
-def decision_lines(decisions: list[dict]) -> list[str]:
-    """One line per task after the first: each subspace's keep / prune decision and the ratio
-    the rule compared (``L_prev / L_curr`` against ``1 + eps``)."""
-    from .console import decision_parts
-
-    lines = []
-    for t in sorted({d["task"] for d in decisions}):
-        parts = decision_parts([d for d in decisions if d["task"] == t])
-        if parts:
-            lines.append(f"task {task_label(t)}: " + ", ".join(parts))
-    return lines
-
-
-def print_stream_results(results: dict) -> None:
-    print(f"[hispo-pl] stream {' -> '.join(results['stream'])}")
-    print(results["table"])
-    parts = [f"{k} {100 * results[k]:.1f}" for k in ("PER", "BWT", "FWT") if k in results]
-    if "MEM" in results:
-        parts.append(f"MEM {results['MEM']:.2f} models")
-    print("[hispo-pl] " + "  ".join(parts))
-    if results.get("anchors"):
-        print(f"[hispo-pl] anchors per subspace: {results['anchors']}")
-    run_dir = RunDir(results["run_dir"])
-    for line in decision_lines(run_dir.read_decisions()):
-        print(f"[hispo-pl] {line}  (L_prev / L_curr vs 1 + eps)")
-    print(f"[hispo-pl] wall time per task (s): {[round(t) for t in results['wall_time_s']]}")
-    print(f"[hispo-pl] results: {run_dir.results_file}")
-    if any(Path(results["run_dir"]).glob("events.out.tfevents.*")):
-        print(f"[hispo-pl] curves and decisions: tensorboard --logdir {results['run_dir']}")
 
 
 def check_fit_args(argv: list[str]) -> str | None:

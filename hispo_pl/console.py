@@ -1,5 +1,6 @@
 """What a stream prints: a header and a summary line per task, training progress as lines when
-the output is not a terminal, and Lightning's own notices once per stream rather than per task."""
+the output is not a terminal, Lightning's own notices once per stream rather than per task, and
+the results and decisions at the stream's end."""
 
 from __future__ import annotations
 
@@ -7,11 +8,12 @@ import contextlib
 import logging
 import sys
 import time
+from pathlib import Path
 
 import lightning as L
 from lightning.pytorch.callbacks import TQDMProgressBar
 
-from .rundir import task_label
+from .rundir import RunDir, task_label
 
 # Lightning's start-of-fit notices (accelerator lines, tips) go through these loggers
 LIGHTNING_NOTICES = (
@@ -127,6 +129,35 @@ class TaskProgressBar(TQDMProgressBar):
 
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self.train_progress_bar.set_postfix(self.get_metrics(trainer, pl_module))
+
+
+def decision_lines(decisions: list[dict]) -> list[str]:
+    """One line per task after the first: each subspace's keep / prune decision and the ratio
+    the rule compared (``L_prev / L_curr`` against ``1 + eps``)."""
+    lines = []
+    for t in sorted({d["task"] for d in decisions}):
+        parts = decision_parts([d for d in decisions if d["task"] == t])
+        if parts:
+            lines.append(f"task {task_label(t)}: " + ", ".join(parts))
+    return lines
+
+
+def print_stream_results(results: dict) -> None:
+    print(f"[hispo-pl] stream {' -> '.join(results['stream'])}")
+    print(results["table"])
+    parts = [f"{k} {100 * results[k]:.1f}" for k in ("PER", "BWT", "FWT") if k in results]
+    if "MEM" in results:
+        parts.append(f"MEM {results['MEM']:.2f} models")
+    print("[hispo-pl] " + "  ".join(parts))
+    if results.get("anchors"):
+        print(f"[hispo-pl] anchors per subspace: {results['anchors']}")
+    run_dir = RunDir(results["run_dir"])
+    for line in decision_lines(run_dir.read_decisions()):
+        print(f"[hispo-pl] {line}  (L_prev / L_curr vs 1 + eps)")
+    print(f"[hispo-pl] wall time per task (s): {[round(t) for t in results['wall_time_s']]}")
+    print(f"[hispo-pl] results: {run_dir.results_file}")
+    if any(Path(results["run_dir"]).glob("events.out.tfevents.*")):
+        print(f"[hispo-pl] curves and decisions: tensorboard --logdir {results['run_dir']}")
 
 
 def interactive() -> bool:

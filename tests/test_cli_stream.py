@@ -77,7 +77,7 @@ def test_stream_fit_prints_metrics_logs_and_resumes(tiny_umaze, tmp_path, capsys
 
 
 def test_decision_lines_name_each_subspaces_decision_and_ratio():
-    from hispo_pl.cli import decision_lines
+    from hispo_pl.console import decision_lines
 
     records = [
         {"task": 0, "subspace": "high", "decision": "first", "l_curr": 0.2, "eps": 0.1},

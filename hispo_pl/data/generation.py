@@ -205,7 +205,6 @@ def generate_dataset(
     import minari
     from minari.data_collector import EpisodeBuffer
 
-
     task = parse_task(name)
     name = task.dataset_name
     dataset_id = local_dataset_id(name)
