@@ -81,7 +81,7 @@ class RolloutEvaluation(L.Callback):
         i = pl_module.task_index
         results = [
             self._run(task, pl_module, j, record=j == i)
-            for j, task in enumerate(trainer.datamodule.stream)
+            for j, task in enumerate(trainer.datamodule.tasks)
         ]
         row = [r.success for r in results]
         pl_module.task_record.success_row = row
@@ -100,7 +100,7 @@ class RolloutEvaluation(L.Callback):
 
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        if trainer.datamodule.stream:
+        if trainer.datamodule.tasks:
             self._evaluate_stream(trainer, pl_module)
         else:
             self._evaluate_current(trainer, pl_module)

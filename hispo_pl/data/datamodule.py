@@ -117,19 +117,18 @@ class TaskDataModule(L.LightningDataModule):
             raise ValueError(
                 f"--data.holdout must be in [0, 1) (a share of episodes), got {holdout}"
             )
-        self.stream: list[str] | None = (
-            None if stream is None else [t.spec for t in parse_stream(stream)]
+        self.tasks: list[Task] = [] if stream is None else parse_stream(stream)  # parsed once
+        self.stream: list[str] | None = [t.spec for t in self.tasks] if self.tasks else None
+        self.task: Task = (
+            parse_task(task) if task is not None else (self.tasks or [parse_task(DEFAULT_TASK)])[0]
         )
-        self.task: Task = parse_task(
-            task if task is not None else (self.stream or [DEFAULT_TASK])[0]
-        )
-        families = {parse_task(t).env_family.name for t in self.stream or []}
+        families = {t.env_family.name for t in self.tasks}
         if len(families) > 1:
             raise ValueError(
                 f"a stream's tasks must share one environment family (one set of observation "
                 f"and action sizes); got {', '.join(sorted(families))} in {self.stream}"
             )
-        mazes = sorted({parse_task(t).dataset_name for t in self.stream or [self.task.spec]})
+        mazes = sorted({t.dataset_name for t in self.tasks or [self.task]})
         if dataset is not None and len(mazes) > 1:
             raise ConfigError(
                 f"--data.dataset names one dataset, but the stream has {len(mazes)} mazes "
@@ -170,12 +169,12 @@ class TaskDataModule(L.LightningDataModule):
 
     def earlier_tasks(self) -> list[Task]:
         """Distinct tasks of the stream before the current one (its first occurrence)."""
-        if self.stream is None:
+        if not self.tasks:
             return []
-        if self.task.spec not in self.stream:
+        if self.task not in self.tasks:
             raise ValueError(f"task {self.task.spec} is not in the stream {self.stream}")
-        specs = self.stream[: self.stream.index(self.task.spec)]
-        return [parse_task(s) for s in dict.fromkeys(specs) if s != self.task.spec]
+        earlier = self.tasks[: self.tasks.index(self.task)]
+        return [t for t in dict.fromkeys(earlier) if t != self.task]
 
     @property
     def obs_dim(self) -> int:
