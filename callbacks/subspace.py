@@ -24,6 +24,7 @@ from ..modules.hispo import SubspacePolicy
 from ..nn import eval_mode
 from ..rundir import RunDir, task_label
 from ..search import RaceOutcome, race_subspace, resolve_precision
+from ..tasks import Family
 
 
 def require_subspace_policy(pl_module: L.LightningModule, who: str) -> SubspacePolicy:
@@ -304,21 +305,34 @@ class SubspacePruning(L.Callback):
     callback list (checked in ``setup``).
 
     Args:
-        eps_high: tolerance of the high subspace.
-        eps_low: tolerance of the low subspace.
+        eps_high: tolerance of the high subspace; ``None``: the task family's
+            (:attr:`~hispo_pl.tasks.Family.pruning_eps`).
+        eps_low: tolerance of the low subspace; ``None``: the task family's.
         eps: tolerances by subspace name, for modules whose subspaces are named otherwise
             (CSPO's single ``policy``: ``{"policy": 0.1}``); its entries override
             ``eps_high`` / ``eps_low``. A subspace named nowhere gets the largest tolerance
-            given (0.1 with the defaults).
+            given, else the smallest of the family's.
     """
 
     def __init__(
-        self, eps_high: float = 0.1, eps_low: float = 0.1, eps: dict[str, float] | None = None
+        self,
+        eps_high: float | None = None,
+        eps_low: float | None = None,
+        eps: dict[str, float] | None = None,
     ):
-        self.eps = {"high": eps_high, "low": eps_low, **(eps or {})}
+        given = {"high": eps_high, "low": eps_low, **(eps or {})}
+        self.eps = {name: e for name, e in given.items() if e is not None}
         bad = {name: e for name, e in self.eps.items() if not e >= 0}
         if bad:  # checked here, not after a task has trained
             raise ValueError(f"SubspacePruning tolerances must be >= 0, got {bad}")
+
+    def tolerance(self, name: str, family: Family) -> float:
+        """ε of subspace ``name`` on a task of ``family``: the one given, else the family's."""
+        if name in self.eps:
+            return self.eps[name]
+        if name in family.pruning_eps:
+            return family.pruning_eps[name]
+        return max(self.eps.values()) if self.eps else min(family.pruning_eps.values())
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
@@ -328,13 +342,16 @@ class SubspacePruning(L.Callback):
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         searches = pl_module.task_record.searches  # DirichletEvaluation's, just before
-        decisions = [self._decide(pl_module, name, res) for name, res in searches.items()]
+        family = trainer.datamodule.task.env_family
+        decisions = [
+            self._decide(pl_module, name, res, self.tolerance(name, family))
+            for name, res in searches.items()
+        ]
         pl_module.freeze_all()
         log_decisions(trainer, pl_module, decisions)
 
-    def _decide(self, module, name: str, res: SearchResult) -> dict:
+    def _decide(self, module, name: str, res: SearchResult, eps: float) -> dict:
         task = module.task_index
-        eps = self.eps.get(name, max(self.eps.values()))
         if res.l_prev is None:
             module.set_task_alpha(task, name, torch.tensor(res.alpha_curr))
             action = "first"

@@ -244,18 +244,36 @@ def _two_anchor_module() -> HiSPO:
 def test_decide_keeps_when_the_previous_subspace_is_worse():
     m = _two_anchor_module()
     res = SearchResult(l_curr=1.0, alpha_curr=[0.3, 0.7], l_prev=2.0, alpha_prev=[1.0, 0.0])
-    d = SubspacePruning(eps_high=0.0, eps_low=0.0)._decide(m, "high", res)
+    d = SubspacePruning()._decide(m, "high", res, eps=0.0)
     assert d["decision"] == "keep" and d["anchors"] == 2 and d["task"] == 1
     assert m.n_anchors("high") == 2
     torch.testing.assert_close(m.task_alphas("high"), torch.tensor([[1.0, 0.0], [0.3, 0.7]]))
 
 
+def test_tolerances_left_unset_are_the_task_familys():
+    from hispo_pl.tasks import FAMILIES
+
+    point, game = FAMILIES["pointmaze"], FAMILIES["amazeville"]
+    assert point.pruning_eps != game.pruning_eps  # the families do differ
+    unset = SubspacePruning()
+    for family in (point, game):
+        assert [unset.tolerance(n, family) for n in ("high", "low")] == [
+            family.pruning_eps["high"],
+            family.pruning_eps["low"],
+        ]
+        assert unset.tolerance("policy", family) == min(family.pruning_eps.values())
+    given = SubspacePruning(eps_low=0.3)  # what is given wins; the rest stays the family's
+    assert given.tolerance("low", game) == 0.3
+    assert given.tolerance("high", game) == game.pruning_eps["high"]
+    assert given.tolerance("policy", game) == 0.3  # named nowhere: the largest given
+
+
 def test_decide_prunes_at_the_boundary_and_stores_the_previous_point():
     m = _two_anchor_module()
     res = SearchResult(l_curr=1.0, alpha_curr=[0.3, 0.7], l_prev=1.5, alpha_prev=[1.0, 0.0])
-    pruning = SubspacePruning(eps_high=0.1, eps_low=0.5)
-    assert pruning._decide(m, "high", res)["decision"] == "keep"  # 1.5 > 1.1
-    d = pruning._decide(m, "low", res)  # 1.5 <= 1.5: prune
+    pruning = SubspacePruning()
+    assert pruning._decide(m, "high", res, eps=0.1)["decision"] == "keep"  # 1.5 > 1.1
+    d = pruning._decide(m, "low", res, eps=0.5)  # 1.5 <= 1.5: prune
     assert d["decision"] == "prune" and d["anchors"] == 1 and d["eps"] == 0.5
     assert m.n_anchors("low") == 1
     assert m.task_alphas("low").tolist() == [[1.0], [1.0]]

@@ -244,7 +244,7 @@ def test_method_knobs_reach_their_callbacks(tmp_path):
     ]  # fmt: skip
     cli = _instantiated(args)
     by_type = {type(cb): cb for cb in cli.trainer.callbacks}
-    assert by_type[SubspacePruning].eps == {"high": 0.1, "low": 0.25}
+    assert by_type[SubspacePruning].eps == {"low": 0.25}  # the high one: the family's
     assert by_type[DirichletEvaluation].n_candidates == 64
     assert by_type[RolloutEvaluation].episodes == 7
     # the saved configuration holds the effective values, not the flags

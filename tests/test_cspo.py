@@ -24,6 +24,7 @@ from hispo_pl.modules.hbc import HBC, GoalConditionedBC
 from hispo_pl.modules.hispo import HiSPO, SubspacePolicy, training_alphas
 from hispo_pl.nn.hierarchy import high_input, low_input
 from hispo_pl.nn.mlp import gaussian_nll
+from hispo_pl.tasks import FAMILIES
 
 ROOT = Path(__file__).resolve().parents[1]
 SIZES = {"obs_dim": 4, "action_dim": 2, "backbone": BackboneConfig(high_hidden=8, low_hidden=16)}
@@ -142,7 +143,8 @@ def test_the_callbacks_grow_and_prune_both_levels_with_one_decision():
     assert [m.policies[level].net.n_anchors for level in LEVELS] == [2, 2]
 
     res = SearchResult(l_curr=1.0, alpha_curr=[0.3, 0.7], l_prev=1.05, alpha_prev=[1.0, 0.0])
-    d = SubspacePruning()._decide(m, "policy", res)  # no eps for "policy": 0.1, the largest
+    pruning = SubspacePruning()  # no eps for "policy": the family's smallest, 0.1
+    d = pruning._decide(m, "policy", res, pruning.tolerance("policy", FAMILIES["pointmaze"]))
     assert (d["subspace"], d["decision"], d["eps"], d["anchors"]) == ("policy", "prune", 0.1, 1)
     assert [m.policies[level].net.n_anchors for level in LEVELS] == [1, 1]
     assert m.task_alphas("policy").tolist() == [[1.0], [1.0]]
@@ -155,7 +157,8 @@ def test_pruning_takes_the_tolerance_of_the_policy_subspace_from_eps():
         m.set_task_alpha(0, "policy", torch.ones(1))
         m.add_anchor("policy")
         m.task_index = 1
-        d = SubspacePruning(eps_high=1.0, eps_low=1.0, eps=eps)._decide(m, "policy", res)
+        pruning = SubspacePruning(eps_high=1.0, eps_low=1.0, eps=eps)
+        d = pruning._decide(m, "policy", res, pruning.tolerance("policy", FAMILIES["pointmaze"]))
         assert (d["decision"], d["eps"], m.n_anchors("policy")) == (
             decision,
             eps["policy"],
