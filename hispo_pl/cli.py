@@ -16,7 +16,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import signal
 import sys
 import time
 import warnings
@@ -280,19 +282,43 @@ def _quiet_known_warnings() -> None:
 def main(argv: list[str] | None = None) -> int:
     """The ``hispo-pl`` command. A user error (a bad value, spec, file or run directory) prints
     one paragraph and returns its exit code (2); anything else is a bug and keeps its
-    traceback. After Ctrl-C it says how to resume and returns 130."""
+    traceback. After Ctrl-C (130) or SIGTERM (143) it says how to resume."""
     argv = sys.argv[1:] if argv is None else argv
     _quiet_known_warnings()
     prog = "hispo-pl" + (f" {argv[0]}" if argv and argv[0] in SUBCOMMANDS else "")
+    received: list[int] = []
     try:
-        return _dispatch(argv)
+        with terminate_as_interrupt(received):
+            return _dispatch(argv)
     except UserError as err:
         print(f"{prog}: error: {err}", file=sys.stderr)
         return err.exit_code
     except KeyboardInterrupt as err:
         hint = str(err) if isinstance(err, Interrupted) else "interrupted"
         print(f"\n{prog}: {hint}", file=sys.stderr)
-        return 130
+        return 128 + (received[0] if received else signal.SIGINT)
+
+
+@contextlib.contextmanager
+def terminate_as_interrupt(received: list[int]):
+    """SIGTERM (``kill``, a scheduler's stop, the benchmark stopping its runs) ends a command
+    the way Ctrl-C does: a stream keeps what it finished and says how to resume, a benchmark
+    stops its runs. Lightning alone only notes a SIGTERM that arrives during a training step,
+    and a stream's next task forgets it. The signal number goes to ``received``."""
+
+    def interrupt(signum, frame):
+        received.append(signum)
+        raise KeyboardInterrupt
+
+    try:
+        previous = signal.signal(signal.SIGTERM, interrupt)
+    except ValueError:  # not the main thread: leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 VERBS: dict[str, str] = {

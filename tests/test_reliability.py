@@ -278,15 +278,39 @@ def test_user_errors_are_one_paragraph_and_exit_2(argv, said, capsys):
     assert said in err and "Traceback" not in err
 
 
-def test_ctrl_c_says_how_to_resume(tiny_umaze, tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_ctrl_c_or_kill_says_how_to_resume(tiny_umaze, tmp_path, sig):
     args = tiny_stream_args("ftn", tmp_path, ["pointmaze-umaze-N[3]"], "--trainer.max_steps", "400")
     proc = _spawn(_cli([*args, "--checkpoint_every", "5"], SLOW_STEPS))
     _wait_for(_run_dir(tmp_path) / "task_01.partial.ckpt", proc)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(sig)
     out, err = proc.communicate(timeout=120)
-    assert proc.returncode == 130, err[-3000:]
+    assert proc.returncode == 128 + sig, err[-3000:]
     assert "interrupted during task 1 of 1" in err and "Rerun the same command to resume" in err
     assert "Traceback" not in err
+
+
+SLOW_ROLLOUTS = """
+import time, pathlib
+from hispo_pl.evaluation import RolloutEvaluator
+def _slow(self, *args, **kwargs):
+    pathlib.Path("{marker}").touch()
+    time.sleep(60)
+RolloutEvaluator.run = _slow
+"""
+
+
+def test_kill_outside_a_training_step_stops_the_stream(tiny_umaze, tmp_path):
+    """Lightning only notes a SIGTERM during its training steps; one that arrives while the
+    task-end callbacks roll out must stop the stream all the same."""
+    marker = tmp_path / "rolling_out"
+    args = tiny_stream_args("ftn", tmp_path, ["pointmaze-umaze-N[3]"], "--trainer.max_steps", "2")
+    proc = _spawn(_cli(args, SLOW_ROLLOUTS.format(marker=marker)))
+    _wait_for(marker, proc)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 128 + signal.SIGTERM, err[-3000:]
+    assert "Rerun the same command to resume" in err and "Traceback" not in err
 
 
 # --- 4. run directory integrity ---------------------------------------------------------------
@@ -415,6 +439,32 @@ def test_benchmark_lists_a_failed_method_in_the_table(tmp_path):
     write_report(out, "pointmaze-1")
     table = (out / "table.md").read_text()
     assert "| broken | 0 | failed (exit 2)" in table and "| ftn |" in table
+
+
+def test_killing_the_benchmark_stops_its_runs(tiny_umaze, tmp_path):
+    """``kill`` of the benchmark stops the fits it launched (they are not left running), and
+    each says how to resume."""
+    out = tmp_path / "bench"
+    overrides = [
+        "--data.stream", '["pointmaze-umaze-N[3]"]', "--trainer.max_steps", "1000000",
+        "--data.batch_size", "64", "--trainer.callbacks.init_args.episodes", "2",
+    ]  # fmt: skip
+    args = ["benchmark", "--stream", "pointmaze-1", "--methods", "ftn", "--seeds", "0,"]
+    proc = _spawn(_cli([*args, "--workers", "1", "--out", str(out), "--", *overrides]))
+    lock = out / "runs" / "ftn" / "seed0" / "run.lock"
+    _wait_for(lock, proc)
+    end = time.monotonic() + 60
+    while "pid" not in lock.read_text() and time.monotonic() < end:
+        time.sleep(0.05)
+    fit_pid = int(lock.read_text().split()[1])
+    time.sleep(1.0)  # let the fit reach its training steps
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + signal.SIGTERM, err[-3000:]
+    with pytest.raises(ProcessLookupError):
+        os.kill(fit_pid, 0)
+    log = (out / "runs" / "ftn" / "seed0" / "fit.log").read_text()
+    assert "Rerun the same command to resume" in log
 
 
 def test_benchmark_dry_run_validates_the_overrides(tmp_path, capsys):

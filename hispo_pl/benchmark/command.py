@@ -8,6 +8,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from ..errors import Interrupted
 from ..io import atomic_write_text
 from .configs import datasets_needed, prepare_datasets
 from .launch import Reporter, run_env, run_local, run_ray
@@ -141,8 +142,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
     except KeyboardInterrupt:
         reporter.close()
-        print("[benchmark] interrupted: rerun the same command to resume")
-        return 130
+        raise Interrupted(
+            "interrupted: finished runs are kept, the stopped ones saved what they finished; "
+            "rerun the same command to resume"
+        ) from None
     reporter.close()
     try:
         if args.export:
