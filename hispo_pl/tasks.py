@@ -121,6 +121,7 @@ FAMILIES: dict[str, Family] = {
     ),
     "antmaze": Family(
         name="antmaze",
+        high_inputs="goal",  # where to go next depends on the maze, not on the legs' state
         env_id="AntMaze_{}-v5",
         obs_dim=27,
         action_dim=8,

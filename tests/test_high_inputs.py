@@ -70,9 +70,10 @@ def test_flat_policy_follows_the_high_inputs():
     ("task", "choice", "expected"),
     [
         ("pointmaze-umaze-N[3]", "family", False),
-        ("antmaze-umaze-N[3]", "family", True),
+        ("antmaze-umaze-N[3]", "family", False),
+        ("amazeville-HOOO[3]", "family", True),
         ("pointmaze-umaze-N[3]", "observation", True),
-        ("antmaze-umaze-N[3]", "goal", False),
+        ("antmaze-umaze-N[3]", "observation", True),
     ],
 )
 def test_datamodule_says_what_the_high_policy_sees(task, choice, expected):

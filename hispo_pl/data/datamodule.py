@@ -82,8 +82,9 @@ class TaskDataModule(L.LightningDataModule):
             the goal offset, the position and the goal (linked to the model's ``high_obs``):
             ``observation`` (the authors'), ``goal`` (the goal-space velocity instead, so an
             observation variant does not move its inputs), or ``family``: the family's choice
-            (PointMaze ``goal``, whose observation is position and velocity; the others
-            ``observation``).
+            (PointMaze and AntMaze ``goal``: where to go next depends on the maze, not on the
+            ball's or the legs' state; the game mazes ``observation``, whose depth image shows
+            the doors and blocks).
         holdout: share of each task's episodes never trained on (chosen by episode, with a
             fixed seed): the subspace search, ``L_curr`` and the zero-shot test score on them,
             so that a decision measures how a policy generalises, not how well it memorised.
