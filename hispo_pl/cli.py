@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import signal
 import sys
 import time
@@ -289,10 +290,15 @@ def main(argv: list[str] | None = None) -> int:
     received: list[int] = []
     try:
         with terminate_as_interrupt(received):
-            return _dispatch(argv)
+            code = _dispatch(argv)
+            sys.stdout.flush()  # a pipe closed early shows here, not as an error at exit
+            return code
     except UserError as err:
         print(f"{prog}: error: {err}", file=sys.stderr)
         return err.exit_code
+    except BrokenPipeError:  # the output went into a pipe that closed early (| head)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error at exit
+        return 1
     except KeyboardInterrupt as err:
         hint = str(err) if isinstance(err, Interrupted) else "interrupted"
         print(f"\n{prog}: {hint}", file=sys.stderr)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -250,6 +252,18 @@ def test_method_knobs_reach_their_callbacks(tmp_path):
     # the saved configuration holds the effective values, not the flags
     assert cli.config["eps_low"] is None
     assert cli.config["trainer"]["callbacks"][2]["init_args"]["eps_low"] == 0.25
+
+
+def test_output_into_a_pipe_closed_early_is_not_an_error():
+    """``hispo-pl config list | head -1``: the reader leaves, the command stays quiet."""
+    source = "import sys\nfrom hispo_pl.cli import main\nsys.exit(main(['config', 'list']))"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", source], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    proc.stdout.close()  # the reader is gone before anything is written
+    err = proc.stderr.read()
+    assert proc.wait(timeout=60) == 1
+    assert "Traceback" not in err and "BrokenPipe" not in err, err
 
 
 def test_a_knob_the_method_lacks_is_refused(capsys):
