@@ -8,11 +8,10 @@ wall time of the stream.
 
 from __future__ import annotations
 
-import json
 import sys
-from pathlib import Path
 
 from hispo_pl.metrics import summarize_runs
+from hispo_pl.rundir import RunDir
 
 SCALE = {"PER": 100, "BWT": 100, "FWT": 100, "MEM": 1, "minutes": 1}
 
@@ -20,10 +19,13 @@ SCALE = {"PER": 100, "BWT": 100, "FWT": 100, "MEM": 1, "minutes": 1}
 def main(run_dirs: list[str]) -> None:
     results = []
     for d in run_dirs:
-        path = Path(d) / "results.json"
-        if not path.exists():
-            sys.exit(f"{path} not found: is the run finished? (rerun its command to resume it)")
-        r = json.loads(path.read_text())
+        run = RunDir(d)
+        if not run.results_file.exists():
+            sys.exit(
+                f"{run.results_file} not found: is the run finished? (rerun its command to "
+                "resume it)"
+            )
+        r = run.read_results()
         results.append(r)
         anchors = " ".join(f"{k}={v}" for k, v in r.get("anchors", {}).items())
         print(
