@@ -287,9 +287,9 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     _quiet_known_warnings()
     prog = "hispo-pl" + (f" {argv[0]}" if argv and argv[0] in SUBCOMMANDS else "")
-    received: list[int] = []
+    received: list[int] = []  # the signal that stopped the command, if one did
     try:
-        with terminate_as_interrupt(received):
+        with terminate_as_interrupt() as received:
             code = _dispatch(argv)
             sys.stdout.flush()  # a pipe closed early shows here, not as an error at exit
             return code
@@ -306,11 +306,12 @@ def main(argv: list[str] | None = None) -> int:
 
 
 @contextlib.contextmanager
-def terminate_as_interrupt(received: list[int]):
+def terminate_as_interrupt():
     """SIGTERM (``kill``, a scheduler's stop, the benchmark stopping its runs) ends a command
     the way Ctrl-C does: a stream keeps what it finished and says how to resume, a benchmark
     stops its runs. Lightning alone only notes a SIGTERM that arrives during a training step,
-    and a stream's next task forgets it. The signal number goes to ``received``."""
+    and a stream's next task forgets it. Yields the list the signal's number is put in."""
+    received: list[int] = []
 
     def interrupt(signum, frame):
         received.append(signum)
@@ -319,10 +320,10 @@ def terminate_as_interrupt(received: list[int]):
     try:
         previous = signal.signal(signal.SIGTERM, interrupt)
     except ValueError:  # not the main thread: leave signals alone
-        yield
+        yield received
         return
     try:
-        yield
+        yield received
     finally:
         signal.signal(signal.SIGTERM, previous)
 

@@ -119,7 +119,6 @@ class TaskDataModule(L.LightningDataModule):
                 f"--data.holdout must be in [0, 1) (a share of episodes), got {holdout}"
             )
         self.tasks: list[Task] = [] if stream is None else parse_stream(stream)  # parsed once
-        self.stream: list[str] | None = [t.spec for t in self.tasks] if self.tasks else None
         self.task: Task = (
             parse_task(task) if task is not None else (self.tasks or [parse_task(DEFAULT_TASK)])[0]
         )
@@ -167,6 +166,11 @@ class TaskDataModule(L.LightningDataModule):
             strategy=strategy,
             goal_horizon=horizon,
         )
+
+    @property
+    def stream(self) -> list[str] | None:
+        """The stream's task specs (``None`` for a single task)."""
+        return [t.spec for t in self.tasks] or None
 
     def earlier_tasks(self) -> list[Task]:
         """Distinct tasks of the stream before the current one (its first occurrence)."""

@@ -124,7 +124,8 @@ class CSP(CSPO):
 
     @property
     def state_dim(self) -> int:
-        """Width of the critic's state input (the high policy's inputs)."""
+        """Width of the critic's state input: the high policy's inputs with the observation
+        (whatever the policy's ``high_obs``: a batch's next state has no velocity)."""
         return high_input_dim(self.obs_dim, self.goal_dim)
 
     def _new_critic(self, alpha_dim: int) -> SubspaceCritic:
