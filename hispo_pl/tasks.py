@@ -96,7 +96,7 @@ def _game_family(
         step_seconds=0.1,  # decisions at 10 Hz
         # a closed door or a raised block changes what to do in a few states only, so the mean
         # loss moves little where the behaviour changes a lot: prune only at nearly equal loss
-        pruning_eps={"high": 0.05, "low": 0.1},
+        pruning_eps={"high": 0.05, "low": 0.05},
         expert="hispo_pl.envs.videogame.expert:GameExpert",
         game=True,
     )
