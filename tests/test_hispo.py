@@ -167,6 +167,17 @@ def test_add_anchor_twice_freezes_the_previous_newest():
     assert low == _params_of_anchor(m, "low", 2)
 
 
+def test_new_anchor_score_starts_the_task_near_the_new_anchor():
+    even, leaning = _module(), _module(new_anchor_score=2.0)
+    for m in (even, leaning):
+        m.add_anchor("low")
+        m.add_anchor("low")
+    assert torch.allclose(even.current_alpha("low"), torch.full((3,), 1 / 3))
+    alpha = training_alphas(leaning.scores["low"], groups=1, noise=0.0)[0]
+    assert alpha[-1] > 0.9 and torch.allclose(alpha[:-1], alpha[0].expand(2))
+    assert leaning.scores["low"].tolist() == [0.0, 0.0, 2.0]
+
+
 def test_prune_last_anchor_undoes_add_anchor():
     m = _module()
     for name in SUBSPACES:

@@ -82,6 +82,10 @@ class HiSPO(GoalConditionedBC):
             would need a weight matrix per sample; ``alpha_groups`` = batch size gives exactly
             that). The default, one draw per step, keeps a step a plain forward (the fast
             training path of :mod:`hispo_pl.nn.fast`); figures in ``docs/performance.md``.
+        new_anchor_score: the score a new anchor starts its task with, the older anchors
+            starting at 0. At 0 (the authors' code) training starts from equal weights, so a
+            new anchor, whose gradient is scaled by its weight, starts at 1/K of the rate a
+            fresh network learns at; a positive score starts the task close to the new anchor.
 
     Which policies a subspace holds is the class attribute ``subspace_policies`` (here each
     policy its own subspace; :class:`~hispo_pl.modules.cspo.CSPO` puts both in one): the
@@ -102,6 +106,7 @@ class HiSPO(GoalConditionedBC):
         cosine_weight: float = 0.0,
         alpha_noise: float = 0.1,
         alpha_groups: int = 1,
+        new_anchor_score: float = 0.0,
     ):
         super().__init__(obs_dim, action_dim, goal_dim, backbone, optim)
         if self.backbone_config.kind != "hbc":
@@ -145,7 +150,9 @@ class HiSPO(GoalConditionedBC):
         for net in self._nets(subspace):
             net.add_anchor(self.hparams.anchor_init)
         k = self.n_anchors(subspace)
-        self.scores[subspace] = nn.Parameter(torch.zeros(k, device=self.scores[subspace].device))
+        scores = torch.zeros(k, device=self.scores[subspace].device)
+        scores[-1] = self.hparams.new_anchor_score
+        self.scores[subspace] = nn.Parameter(scores)
         self._set_task_alphas(subspace, F.pad(self.task_alphas(subspace), (0, 1)))
         self._grown_for[subspace] = self.task_index
 
