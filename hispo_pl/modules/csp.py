@@ -99,6 +99,7 @@ class CSP(CSPO):
         cosine_weight: float = 0.0,
         alpha_noise: float = 0.1,
         alpha_groups: int = 1,
+        new_anchor_score: float = 0.0,
         alpha_sampling: AlphaSampling = "dirichlet",
         critic: dict[str, int | float] | None = None,
     ):
@@ -116,6 +117,7 @@ class CSP(CSPO):
             cosine_weight=cosine_weight,
             alpha_noise=alpha_noise,
             alpha_groups=alpha_groups,
+            new_anchor_score=new_anchor_score,
         )
         self.critic_config = CriticConfig.from_dict(critic)
         self.critic = self._new_critic(self.n_anchors(POLICY))

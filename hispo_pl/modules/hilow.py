@@ -61,6 +61,7 @@ class HiLOW(HiSPO):
         cosine_weight: float = 0.0,
         alpha_noise: float = 0.1,
         alpha_groups: int = 1,
+        new_anchor_score: float = 0.0,
     ):
         if rank < 1:
             raise ValueError(f"HiLOW: rank must be >= 1, got {rank}")
@@ -80,6 +81,7 @@ class HiLOW(HiSPO):
             cosine_weight=cosine_weight,
             alpha_noise=alpha_noise,
             alpha_groups=alpha_groups,
+            new_anchor_score=new_anchor_score,
         )
         for policy in self.policies.heads().values():  # θ_1 as HiSPO draws it, then low-rank
             low_rank_(policy.net, rank)
