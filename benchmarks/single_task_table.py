@@ -1,6 +1,7 @@
 """Single-task success of several settings on many mazes, side by side: one ``hispo-pl fit``
-per (setting, task, seed), run in parallel processes, resumable (a run whose ``result.json``
-exists is skipped), then ``table.md`` and ``table.csv`` (success mean ± std over seeds).
+per (setting, task, seed), run in parallel processes by the benchmark's runner
+(:mod:`hispo_pl.benchmark`: a finished run is skipped, each run's output goes to ``fit.log`` in
+its run directory), then ``table.md`` and ``table.csv`` (success mean ± std over seeds).
 
 A setting is a config file (the paper's HBC-vs-BC table, appendix E.1)::
 
@@ -16,7 +17,7 @@ or one config with named overrides (``--setting NAME='--flag value ...'``, one c
 
 ``{maze}`` in a config path stands for each task's maze. ``--tasks`` takes task specs and
 family names (a family = all its mazes). Arguments after ``--`` go to every fit.
-``--report-only`` rebuilds the tables from the ``result.json`` files under ``--out``.
+``--report-only`` rebuilds the tables from the runs' results under ``--out``.
 """
 
 from __future__ import annotations
@@ -27,11 +28,20 @@ import shlex
 import statistics
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor, as_completed
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from hispo_pl.benchmark.launch import execute_run, run_env
+from hispo_pl.benchmark import (
+    FIT_MODULE,
+    RUNS_DIR,
+    PlannedRun,
+    finished_run_dirs,
+    pending_runs,
+    record_status,
+    run_env,
+    run_local,
+)
 from hispo_pl.rundir import RunDir
 from hispo_pl.tasks import FAMILIES, parse_task
 
@@ -82,15 +92,15 @@ def run_name(setting: Setting, task: str) -> str:
 
 
 def run_dir(out: Path, setting: Setting, task: str, seed: int) -> RunDir:
-    return RunDir(out / "runs" / run_name(setting, task) / f"seed{seed}")
+    return RunDir(out / RUNS_DIR / run_name(setting, task) / f"seed{seed}")
 
 
 def fit_argv(setting: Setting, task: str, seed: int, out: Path, extra: list[str]) -> list[str]:
     return [
-        "-m", "hispo_pl.cli", "fit", "--config", str(setting.config_for(task)),
+        *FIT_MODULE, "fit", "--config", str(setting.config_for(task)),
         "--data.task", task,
         "--seed_everything", str(seed),
-        "--trainer.logger.init_args.save_dir", str(out / "runs"),
+        "--trainer.logger.init_args.save_dir", str(out / RUNS_DIR),
         "--trainer.logger.init_args.name", run_name(setting, task),
         "--trainer.logger.init_args.version", f"seed{seed}",
         *setting.overrides,
@@ -98,27 +108,59 @@ def fit_argv(setting: Setting, task: str, seed: int, out: Path, extra: list[str]
     ]  # fmt: skip
 
 
-def run_one(setting: Setting, task: str, seed: int, out: Path, extra: list[str]) -> dict:
-    run = run_dir(out, setting, task, seed)
-    if run.result_file.exists():
-        return run.read_result()
-    log = out / "logs" / f"{run_name(setting, task)}-seed{seed}.log"
-    argv = fit_argv(setting, task, seed, out, extra)
-    done = execute_run(argv, str(log), str(run.result_file), env=run_env(1))
-    if done["results"] is None:
-        raise RuntimeError(f"{run.path} failed (exit {done['returncode']}); see {log}")
-    return done["results"]
+def plan_runs(
+    settings: list[Setting], tasks: list[str], seeds: list[int], out: Path, extra: list[str]
+) -> list[PlannedRun]:
+    """One single-task run of the benchmark's runner per (task, setting, seed)."""
+    return [
+        PlannedRun(
+            run_name(setting, task),
+            seed,
+            run_dir(out, setting, task, seed).path,
+            tuple(fit_argv(setting, task, seed, out, extra)),
+            single_task=True,
+        )
+        for task in tasks
+        for setting in settings
+        for seed in seeds
+    ]
+
+
+def progress_lines(total: int, done: int) -> Callable[[PlannedRun, dict], None]:
+    """What :func:`~hispo_pl.benchmark.run_local` calls for each finished run: a line with its
+    success, or with where its log is when it failed."""
+    start = time.perf_counter()
+
+    def report(run: PlannedRun, outcome: dict) -> None:
+        nonlocal done
+        done += 1
+        r = outcome["results"]
+        if r is None:
+            why = f"failed (exit {outcome['returncode']})"
+            record_status(run, f"{why}; log: {run.log_path}")
+            print(f"[{done}/{total}] {run.run_dir} {why}; see {run.log_path}", flush=True)
+            return
+        print(
+            f"[{done}/{total}] {run.method} seed {run.seed}: "
+            f"{100 * r['success']:.0f} % ({r['seconds']:.0f} s)  "
+            f"{time.perf_counter() - start:.0f} s elapsed",
+            flush=True,
+        )
+
+    return report
 
 
 def collect_results(out: Path, settings: list[Setting], tasks: list[str]) -> dict:
     """(setting name, task) -> the result dicts of every finished seed under ``out``."""
-    found: dict = {}
-    for setting in settings:
-        for task in tasks:
-            folder = out / "runs" / run_name(setting, task)
-            for result in sorted(folder.glob("seed*/result.json")):
-                found.setdefault((setting.name, task), []).append(RunDir(result.parent))
-    return {key: [r.read_result() for r in runs] for key, runs in found.items()}
+    by_name: dict[str, list[dict]] = {}
+    for path in finished_run_dirs(out, RunDir.RESULT):
+        by_name.setdefault(path.parent.name, []).append(RunDir(path).read_result())
+    return {
+        (setting.name, task): by_name[run_name(setting, task)]
+        for setting in settings
+        for task in tasks
+        if run_name(setting, task) in by_name
+    }
 
 
 def write_tables(out: Path, settings: list[Setting], tasks: list[str], results: dict) -> str:
@@ -172,22 +214,10 @@ def main(argv: list[str] | None = None) -> int:
     seeds = [int(s) for s in args.seeds.split(",")]
     args.out.mkdir(parents=True, exist_ok=True)
     if not args.report_only:
-        jobs = [(s, t, seed) for t in tasks for s in settings for seed in seeds]
-        start = time.perf_counter()
-        with ThreadPoolExecutor(args.workers) as pool:
-            futures = {pool.submit(run_one, *job, args.out, extra): job for job in jobs}
-            for done, future in enumerate(as_completed(futures), 1):
-                setting, task, seed = futures[future]
-                try:
-                    r = future.result()
-                    print(
-                        f"[{done}/{len(jobs)}] {run_name(setting, task)} seed {seed}: "
-                        f"{100 * r['success']:.0f} % ({r['seconds']:.0f} s)  "
-                        f"{time.perf_counter() - start:.0f} s elapsed",
-                        flush=True,
-                    )
-                except RuntimeError as err:
-                    print(f"[{done}/{len(jobs)}] {err}", flush=True)
+        runs = plan_runs(settings, tasks, seeds, args.out, extra)
+        todo = pending_runs(runs, stream=None)
+        report = progress_lines(len(runs), len(runs) - len(todo))
+        run_local(todo, args.workers, report, run_env(1))
     results = collect_results(args.out, settings, tasks)
     print(write_tables(args.out, settings, tasks, results))
     expected = len(settings) * len(tasks) * len(seeds)

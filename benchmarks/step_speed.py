@@ -98,11 +98,10 @@ def time_gemms(gemms, reps: int = 30) -> float:
 
 def _worker(path: str, args: argparse.Namespace, conn) -> None:
     """Serves commands for one path until it receives ``None``."""
-    import lightning as L
     import torch
     from lightning.pytorch.loggers import TensorBoardLogger
+    from timing import trainer_steps_per_s
 
-    from hispo_pl.data.datamodule import TaskDataModule
     from hispo_pl.data.datasets import load_episodes
     from hispo_pl.data.sampler import HERConfig, HERSampler
     from hispo_pl.nn import fast
@@ -145,20 +144,8 @@ def _worker(path: str, args: argparse.Namespace, conn) -> None:
 
         def trainer(method: str, steps: int) -> float:
             torch.manual_seed(0)
-            timer, warmup = _StepTimer(3), 3
-            trainer = L.Trainer(
-                callbacks=[timer],
-                max_steps=steps + warmup,
-                max_epochs=-1,
-                logger=TensorBoardLogger(logdir),
-                enable_checkpointing=False,
-                enable_progress_bar=False,
-                enable_model_summary=False,
-                accelerator="cpu",
-            )
-            dm = TaskDataModule(args.task, steps_per_epoch=steps + warmup)
-            trainer.fit(build(method, fam.obs_dim, fam.action_dim), dm)
-            return steps / (timer.end - timer.start)
+            model = build(method, fam.obs_dim, fam.action_dim)
+            return trainer_steps_per_s(model, args.task, steps, 3, TensorBoardLogger(logdir))
 
         def rollout(task_name: str, episodes: int) -> tuple[float, float]:
             from hispo_pl.evaluation import RolloutEvaluator, module_policy
@@ -187,26 +174,6 @@ def _worker(path: str, args: argparse.Namespace, conn) -> None:
                     conn.send(rollout(*rest))
                 except Exception as err:  # an env that does not build here
                     conn.send(f"not measured ({type(err).__name__}: {err})")
-
-
-class _StepTimer:
-    """Times steps after ``warmup`` of them (a Lightning callback, built lazily)."""
-
-    def __new__(cls, warmup: int):
-        import lightning as L
-
-        class Timer(L.Callback):
-            def __init__(self):
-                self.warmup, self.start, self.end = warmup, 0.0, 0.0
-
-            def on_train_batch_start(self, trainer, *args) -> None:
-                if trainer.global_step == self.warmup:
-                    self.start = time.perf_counter()
-
-            def on_train_batch_end(self, trainer, *args) -> None:
-                self.end = time.perf_counter()
-
-        return Timer()
 
 
 class Worker:

@@ -15,17 +15,18 @@ import logging
 import time
 import warnings
 
-import lightning as L
 import torch
+from timing import trainer_steps_per_s
 
-from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.data.datasets import load_episodes
 from hispo_pl.data.sampler import HERConfig, HERSampler
 from hispo_pl.modules import BC, HBC
 from hispo_pl.tasks import parse_task
 
+WARMUP = 10  # untimed steps before a timing starts
 
-def rate(fn, n: int, warmup: int = 10) -> float:
+
+def rate(fn, n: int, warmup: int = WARMUP) -> float:
     for _ in range(warmup):
         fn()
     t = time.perf_counter()
@@ -44,37 +45,6 @@ def bare_steps_per_s(model, sampler: HERSampler, n: int) -> float:
         opt.step()
 
     return rate(step, n)
-
-
-class _StepTimer(L.Callback):
-    """Times steps after a warm-up, so the Trainer's start-up cost is not counted."""
-
-    def __init__(self, warmup: int = 10):
-        self.warmup, self.start, self.end = warmup, 0.0, 0.0
-
-    def on_train_batch_start(self, trainer, *args) -> None:
-        if trainer.global_step == self.warmup:
-            self.start = time.perf_counter()
-
-    def on_train_batch_end(self, trainer, *args) -> None:
-        self.end = time.perf_counter()
-
-
-def trainer_steps_per_s(model, task: str, n: int) -> float:
-    dm = TaskDataModule(task, steps_per_epoch=n)
-    timer = _StepTimer()
-    trainer = L.Trainer(
-        callbacks=[timer],
-        max_steps=n,
-        max_epochs=-1,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        accelerator="cpu",
-    )
-    trainer.fit(model, dm)
-    return (n - timer.warmup) / (timer.end - timer.start)
 
 
 def main() -> None:
@@ -101,7 +71,8 @@ def main() -> None:
         print(f"threads={threads} sampler batches/s {rate(sampler.sample, 20 * args.steps):8.1f}")
         for name, cls in (("HBC", HBC), ("BC", BC)):
             bare = bare_steps_per_s(cls(fam.obs_dim, fam.action_dim), sampler, args.steps)
-            lit = trainer_steps_per_s(cls(fam.obs_dim, fam.action_dim), str(task), args.steps)
+            model = cls(fam.obs_dim, fam.action_dim)
+            lit = trainer_steps_per_s(model, str(task), args.steps - WARMUP, WARMUP)
             print(f"threads={threads} {name:3s} grad steps/s  bare {bare:6.1f}  trainer {lit:6.1f}")
 
 

@@ -3,7 +3,8 @@
 from .critic import CriticEvaluation, CriticPruning
 from .networks import TaskNetworks, WeightConsolidation
 from .rollout import RolloutEvaluation
-from .subspace import AnchorExtension, DirichletEvaluation, SubspacePruning
+from .search import DirichletEvaluation
+from .subspace import AnchorExtension, SubspacePruning
 from .transfer import ZeroShotTransfer
 
 __all__ = [

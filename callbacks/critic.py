@@ -6,6 +6,7 @@ rule (:class:`CriticPruning`). Anchors are added by HiSPO's
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from functools import partial
 
 import lightning as L
 import torch
@@ -15,17 +16,15 @@ from typing_extensions import override
 from ..decisions import critic_extends, extended_subspace_candidates, previous_subspace_candidates
 from ..modules.csp import CriticScoredSubspace
 from ..nn import eval_mode
+from ..rundir import task_label
 from ..search import RaceOutcome, race_candidates, race_subspace
-from .subspace import check_task_end_order, log_decisions
+from .protocols import require
+from .subspace import apply_decision, check_task_end_order, decide_subspaces
 
 
 def _require_critic(pl_module: L.LightningModule, who: str) -> CriticScoredSubspace:
-    if not isinstance(pl_module, CriticScoredSubspace):
-        raise TypeError(
-            f"{who} needs a subspace of policies with a critic (the CriticScoredSubspace "
-            f"protocol, e.g. hispo_pl.modules.CSP), got {type(pl_module).__name__}"
-        )
-    return pl_module
+    needs = "a subspace of policies with a critic"
+    return require(pl_module, CriticScoredSubspace, who, needs, "CSP")
 
 
 @dataclass
@@ -57,9 +56,9 @@ class CriticEvaluation(L.Callback):
 
     Candidates of the grown subspace: the trained weights, the new anchor alone and
     ``n_candidates`` Dirichlet(1) draws over every anchor; of the previous subspace:
-    ``n_candidates`` draws over the older anchors (the new one at 0). Results are kept in
-    ``results`` for :class:`CriticPruning`. The action-dependence diagnostic is measured at
-    the best point of the grown subspace.
+    ``n_candidates`` draws over the older anchors (the new one at 0). Results go to the
+    module's task record (``task_record.searches``) for :class:`CriticPruning`. The
+    action-dependence diagnostic is measured at the best point of the grown subspace.
 
     Args:
         n_candidates: Dirichlet draws per subspace (old and grown each).
@@ -181,28 +180,16 @@ class CriticPruning(L.Callback):
 
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        searches = pl_module.task_record.searches  # CriticEvaluation's, just before
-        decisions = [self._decide(pl_module, name, res) for name, res in searches.items()]
-        pl_module.freeze_all()
-        log_decisions(trainer, pl_module, decisions)
+        decisions = decide_subspaces(trainer, pl_module, partial(self._decide, pl_module))
         _log_critic(trainer, pl_module, decisions)
 
     def _decide(self, module, name: str, res: CriticSearchResult) -> dict:
-        task = module.task_index
-        if res.w_prev is None:
-            module.set_task_alpha(task, name, torch.tensor(res.alpha_curr))
-            action = "first"
-        elif critic_extends(res.w_curr, res.w_prev, self.eps):
-            module.set_task_alpha(task, name, torch.tensor(res.alpha_curr))
-            action = "keep"
-        else:
-            module.prune_last_anchor(name)
-            module.set_task_alpha(task, name, torch.tensor(res.alpha_prev[:-1]))
-            action = "prune"
+        keep_new = None if res.w_prev is None else critic_extends(res.w_curr, res.w_prev, self.eps)
+        action = apply_decision(module, name, keep_new, res.alpha_curr, res.alpha_prev)
         record = asdict(res)
         diagnostic = record.pop("diagnostic")
         return {
-            "task": task,
+            "task": module.task_index,
             "subspace": name,
             "decision": action,
             "rule": "critic",
@@ -235,4 +222,4 @@ def _log_critic(trainer: L.Trainer, module, decisions: list[dict]) -> None:
         for key, tag in CRITIC_TAGS.items()
         if d.get(key) is not None
     }
-    trainer.logger.log_metrics(metrics, step=module.task_index + 1)
+    trainer.logger.log_metrics(metrics, step=task_label(module.task_index))

@@ -11,15 +11,12 @@ from typing_extensions import override
 
 from ..modules.columns import GrowingPolicy
 from ..modules.regularized import ConsolidatingPolicy
+from .protocols import require
 
 
 def _require_growing_policy(pl_module: L.LightningModule, who: str) -> GrowingPolicy:
-    if not isinstance(pl_module, GrowingPolicy):
-        raise TypeError(
-            f"{who} needs a module that makes a network per task (the GrowingPolicy protocol, "
-            f"e.g. hispo_pl.modules.NetworkPerTask), got {type(pl_module).__name__}"
-        )
-    return pl_module
+    needs = "a module that makes a network per task"
+    return require(pl_module, GrowingPolicy, who, needs, "NetworkPerTask")
 
 
 def trains_on(task: int, train: Literal["all", "first"]) -> bool:
@@ -78,12 +75,8 @@ class WeightConsolidation(L.Callback):
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
-        if not isinstance(pl_module, ConsolidatingPolicy):
-            raise TypeError(
-                f"{type(self).__name__} needs a module with a weight penalty (the "
-                "ConsolidatingPolicy protocol, e.g. hispo_pl.modules.RegularizedFineTuning), got "
-                f"{type(pl_module).__name__}"
-            )
+        needs, example = "a module with a weight penalty", "RegularizedFineTuning"
+        require(pl_module, ConsolidatingPolicy, type(self).__name__, needs, example)
 
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:

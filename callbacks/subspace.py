@@ -1,39 +1,25 @@
-"""HiSPO's callbacks: extend the subspaces at task start, search the previous subspace at task
-end, and keep or prune the new anchors (zero-shot transfer before a task: :mod:`.transfer`).
-Each hook is thin; the rules live in :mod:`hispo_pl.decisions`."""
+"""HiSPO's callbacks: extend the subspaces at task start, and keep or prune the new anchors at
+task end after the search of :mod:`.search` (zero-shot transfer before a task:
+:mod:`.transfer`). Each hook is thin; the rules live in :mod:`hispo_pl.decisions`; how a
+decision is carried out and logged is shared with CSP's :mod:`.critic`."""
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Literal
+from collections.abc import Callable
+from dataclasses import asdict
 
 import lightning as L
 import torch
 from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_warn
-from torch import Tensor
 from typing_extensions import override
 
-from ..decisions import (
-    decided_by_budget,
-    extended_subspace_candidates,
-    keep_previous,
-    previous_subspace_candidates,
-)
-from ..modules.hispo import SubspacePolicy
-from ..nn import eval_mode
+from ..decisions import decided_by_budget, keep_previous
 from ..rundir import RunDir, task_label
-from ..search import RaceOutcome, race_subspace, resolve_precision
 from ..tasks import Family
-
-
-def require_subspace_policy(pl_module: L.LightningModule, who: str) -> SubspacePolicy:
-    if not isinstance(pl_module, SubspacePolicy):
-        raise TypeError(
-            f"{who} needs a module with subspaces of policies (the SubspacePolicy protocol, e.g. "
-            f"hispo_pl.modules.HiSPO), got {type(pl_module).__name__}"
-        )
-    return pl_module
+from .protocols import require_subspace_policy
+from .rollout import RolloutEvaluation
+from .search import DirichletEvaluation, SearchResult
 
 
 class AnchorExtension(L.Callback):
@@ -50,241 +36,9 @@ class AnchorExtension(L.Callback):
                 module.add_anchor(name)  # (transferred: ZeroShotTransfer chose its weights)
 
 
-@dataclass
-class SearchResult:
-    """What the search of one subspace found on the current task. Losses are scored on the
-    task's held-out episodes (what the decision uses); ``*_train`` on its training episodes."""
-
-    l_curr: float
-    alpha_curr: list[float]
-    l_prev: float | None = None
-    alpha_prev: list[float] | None = None
-    l_trained: float | None = None  # the trained weights' loss, when refine_current moved them
-    l_curr_train: float | None = None
-    l_prev_train: float | None = None
-    l_window: float | None = None  # L_curr when the convergence window opened
-    improvement: float | None = None  # relative fall of L_curr over the window (convergence)
-
-
-def _refine(result: SearchResult, candidates: Tensor, race: RaceOutcome) -> None:
-    """The best of the grown subspace replaces the trained weights if its loss is lower."""
-    if race.best_loss < result.l_curr:
-        result.l_trained = result.l_curr
-        result.l_curr, result.alpha_curr = race.best_loss, candidates[race.best].tolist()
-
-
-def window_start(max_steps: int, window: float) -> int | None:
-    """The step after which a task's last ``window`` share of steps begins (None: no window,
-    e.g. a run bounded by epochs or a zero window)."""
-    if max_steps is None or max_steps <= 0 or window <= 0:
-        return None
-    return max(max_steps - max(round(window * max_steps), 1), 0)
-
-
-class DirichletEvaluation(L.Callback):
-    """At the end of a task, search the previous anchors of each subspace for the best weights.
-
-    ``n_candidates`` Dirichlet(1) draws are raced (:func:`hispo_pl.search.race_candidates`):
-    all are ranked on a probe of ``probe_samples`` samples, and the ``survivors`` best are
-    scored on ``n_batches`` batches of the current task's held-out episodes (see
-    ``TaskDataModule.holdout``), the same batches for every candidate (common random numbers),
-    in eval mode with deterministic predictions, chunks of candidates in one batched forward.
-    The trained weights (softmax of the scores) are scored on the same batches. The chosen
-    points are also scored on training batches (``l_curr_train``, ``l_prev_train``), so that a
-    record shows how much of a loss is generalisation. Results are kept in ``results`` for
-    :class:`SubspacePruning`, and the losses saved as ``search/task_XX_<subspace>.npz`` in
-    the run directory.
-
-    Convergence: when the last ``convergence_window`` share of a task's steps begins,
-    ``L_curr`` is measured once more; ``improvement = L_window / L_curr − 1`` says how much the
-    current point was still improving at the end of training. Above the pruning tolerance the
-    decision is made by the step budget rather than by the task (SubspacePruning warns).
-
-    Args:
-        n_candidates: Dirichlet draws per subspace.
-        n_batches: batches of the current task the survivors are scored on.
-        survivors: candidates kept after the probe; ``None`` scores every candidate on every
-            batch (exhaustive, about 10x slower with the defaults).
-        probe_samples: samples (from the first batch) every candidate is ranked on.
-        loss: ``mse`` of the deterministic prediction (positive), or ``nll``.
-        precision: ``32``, ``bf16`` (autocast; several times faster on CPUs with bf16 units),
-            or ``auto``: bf16 where the device supports it natively.
-        seed: seeds the batches and the draws.
-        every_n_steps: also search every this many training steps (0: only at the end), to
-            watch ``L_prev`` against ``L_curr`` while the new anchor learns: logged as
-            ``search/<subspace>/l_prev`` and ``l_curr``; nothing is decided or saved then.
-        refine_current: also race the grown subspace (the trained weights, the new anchor
-            alone and ``n_candidates`` Dirichlet draws over every anchor) and take the best as
-            ``alpha_curr`` / ``L_curr``. Not in the paper, which keeps the softmax of the
-            trained scores; on short budgets the scores stay near uniform and better points
-            lie nearer the new anchor (docs/method.md).
-        convergence_window: share of the task's last steps over which the convergence
-            diagnostic is measured (0: off).
-    """
-
-    def __init__(
-        self,
-        n_candidates: int = 1024,
-        n_batches: int = 16,
-        survivors: int | None = 32,
-        probe_samples: int = 256,
-        loss: Literal["mse", "nll"] = "mse",
-        precision: Literal["auto", "32", "bf16"] = "auto",
-        seed: int = 0,
-        every_n_steps: int = 0,
-        refine_current: bool = True,
-        convergence_window: float = 0.2,
-    ):
-        if every_n_steps < 0:
-            raise ValueError(
-                f"every_n_steps must be >= 0 (0: only at task end), got {every_n_steps}"
-            )
-        if not 0.0 <= convergence_window < 1.0:
-            raise ValueError(f"convergence_window must be in [0, 1), got {convergence_window}")
-        self.n_candidates, self.n_batches, self.loss, self.seed = (
-            n_candidates,
-            n_batches,
-            loss,
-            seed,
-        )
-        self.survivors, self.probe_samples, self.precision = survivors, probe_samples, precision
-        self.every_n_steps = every_n_steps
-        self.refine_current = refine_current
-        self.convergence_window = convergence_window
-        self._l_window: dict[str, float] = {}  # L_curr per subspace when the window opened
-
-    @override
-    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
-        require_subspace_policy(pl_module, type(self).__name__)
-        self._l_window = {}
-
-    @override
-    def state_dict(self) -> dict:
-        return {"l_window": dict(self._l_window)}
-
-    @override
-    def load_state_dict(self, state_dict: dict) -> None:
-        self._l_window = {k: float(v) for k, v in state_dict.get("l_window", {}).items()}
-
-    @override
-    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
-        step = trainer.global_step
-        if step == window_start(trainer.max_steps, self.convergence_window):
-            self._l_window = {
-                name: res.l_curr
-                for name, res in self._run_search(
-                    trainer, pl_module, save=False, prev=False
-                ).items()
-            }
-        if not self.every_n_steps or step % self.every_n_steps or step >= trainer.max_steps:
-            return  # the last step's search is the task-end one
-        metrics = {}
-        for name, res in self._run_search(trainer, pl_module, save=False).items():
-            metrics[f"{pl_module.log_prefix}search/{name}/l_curr"] = res.l_curr
-            if res.l_prev is not None:
-                metrics[f"{pl_module.log_prefix}search/{name}/l_prev"] = res.l_prev
-        for logger in trainer.loggers:
-            logger.log_metrics(metrics, step=step)
-
-    @override
-    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        results = self._run_search(trainer, pl_module, train_losses=True)
-        for name, res in results.items():
-            if name in self._l_window and res.l_curr > 0:
-                res.l_window = self._l_window[name]
-                res.improvement = res.l_window / res.l_curr - 1.0
-        pl_module.task_record.searches = results
-        pl_module.task_record.convergence_window = self.convergence_window
-
-    @torch.no_grad()
-    def _run_search(
-        self,
-        trainer: L.Trainer,
-        module,
-        save: bool = True,
-        prev: bool = True,
-        train_losses: bool = False,
-    ) -> dict[str, SearchResult]:
-        """``L_curr`` (and with ``prev``, ``L_prev``) of every trained subspace on held-out
-        batches; with ``train_losses`` the chosen points are scored on training batches too."""
-        device = module.device
-        batches = trainer.datamodule.fixed_batches(self.n_batches, self.seed, device=device)
-        train_batches = (
-            trainer.datamodule.fixed_batches(
-                self.n_batches, self.seed, device=device, split="train"
-            )
-            if train_losses
-            else None
-        )
-        probe = {k: v[: self.probe_samples] for k, v in batches[0].items()}
-        precision = resolve_precision(self.precision, device)
-        generator = torch.Generator().manual_seed(self.seed)
-        results = {}
-        with eval_mode(module):
-            for name in module.subspace_names:
-                if module.transferred(name):  # zero-shot: nothing was trained to compare
-                    continue
-
-                def race(cands, probe=probe, name=name, batches=batches):
-                    return race_subspace(
-                        module, name, cands, batches, probe, self.survivors, self.loss, precision
-                    )
-
-                alpha_curr = module.current_alpha(name).to(device)
-                l_curr = race(alpha_curr[None], probe=None).best_loss
-                result = SearchResult(l_curr, alpha_curr.tolist())
-                k = module.n_anchors(name)
-                cands, outcome = None, None
-                if k > 1 and prev:
-                    cands = previous_subspace_candidates(self.n_candidates, k, generator).to(device)
-                    outcome = race(cands)
-                    result.l_prev, result.alpha_prev = (
-                        outcome.best_loss,
-                        cands[outcome.best].tolist(),
-                    )
-                if k > 1 and self.refine_current:
-                    cands_curr = extended_subspace_candidates(
-                        self.n_candidates, alpha_curr, generator
-                    )
-                    _refine(result, cands_curr, race(cands_curr))
-                if save and outcome is not None:
-                    self._save(trainer, module, name, cands, outcome, result)
-                if train_batches is not None:
-                    chosen = [result.alpha_curr]
-                    if result.alpha_prev is not None:
-                        chosen.append(result.alpha_prev)
-                    on_train = race(
-                        torch.tensor(chosen, device=device), probe=None, batches=train_batches
-                    )
-                    result.l_curr_train = float(on_train.losses[0])
-                    if result.l_prev is not None:
-                        result.l_prev_train = float(on_train.losses[1])
-                results[name] = result
-        return results
-
-    def _save(self, trainer, module, name, cands, race: RaceOutcome, result: SearchResult) -> None:
-        probe = {}
-        if race.probe_losses is not None:
-            probe = {
-                "probe_alphas": cands.cpu().numpy(),
-                "probe_losses": race.probe_losses.cpu().numpy(),
-            }
-        RunDir(trainer.default_root_dir).write_search(
-            module.task_index,
-            name,
-            alphas=cands[race.survivors].cpu().numpy(),
-            losses=race.losses.cpu().numpy(),
-            l_curr=result.l_curr,
-            l_trained=result.l_trained if result.l_trained is not None else result.l_curr,
-            **probe,
-        )
-
-
 def check_task_end_order(callbacks: list[L.Callback], pruning: L.Callback, search_type: type):
     """Task-end hooks run in list order: the search (an instance of ``search_type``), then
     ``pruning``, then the rollout evaluation that must see the pruned policy."""
-    from .rollout import RolloutEvaluation
-
     pos = {id(cb): i for i, cb in enumerate(callbacks)}
     search = [cb for cb in callbacks if isinstance(cb, search_type)]
     prune, find = type(pruning).__name__, search_type.__name__
@@ -341,43 +95,65 @@ class SubspacePruning(L.Callback):
 
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        searches = pl_module.task_record.searches  # DirichletEvaluation's, just before
         family = trainer.datamodule.task.env_family
-        decisions = [
-            self._decide(pl_module, name, res, self.tolerance(name, family))
-            for name, res in searches.items()
-        ]
-        pl_module.freeze_all()
-        log_decisions(trainer, pl_module, decisions)
+
+        def decide(name: str, res: SearchResult) -> dict:
+            return self._decide(pl_module, name, res, self.tolerance(name, family))
+
+        decide_subspaces(trainer, pl_module, decide)
 
     def _decide(self, module, name: str, res: SearchResult, eps: float) -> dict:
-        task = module.task_index
-        if res.l_prev is None:
-            module.set_task_alpha(task, name, torch.tensor(res.alpha_curr))
-            action = "first"
-        elif keep_previous(res.l_prev, res.l_curr, eps):
-            module.prune_last_anchor(name)
-            module.set_task_alpha(task, name, torch.tensor(res.alpha_prev[:-1]))
-            action = "prune"
-        else:
-            module.set_task_alpha(task, name, torch.tensor(res.alpha_curr))
-            action = "keep"
-        if res.l_prev is not None and decided_by_budget(res.improvement, eps):
+        first = res.l_prev is None
+        keep_new = None if first else not keep_previous(res.l_prev, res.l_curr, eps)
+        action = apply_decision(module, name, keep_new, res.alpha_curr, res.alpha_prev)
+        if not first and decided_by_budget(res.improvement, eps):
             rank_zero_warn(
-                f"task {task + 1}, {name} subspace ({action}): L_curr still fell by "
-                f"{res.improvement:.1%} over the last "
+                f"task {task_label(module.task_index)}, {name} subspace ({action}): L_curr "
+                f"still fell by {res.improvement:.1%} over the last "
                 f"{module.task_record.convergence_window:.0%} of "
                 f"the steps, more than eps = {eps}; the step budget, not the task, decided "
                 "this. Train longer (--trainer.max_steps) for a decision about the task."
             )
         return {
-            "task": task,
+            "task": module.task_index,
             "subspace": name,
             "decision": action,
             "eps": eps,
             "anchors": module.n_anchors(name),
             **asdict(res),
         }
+
+
+def apply_decision(
+    module,
+    name: str,
+    keep_new: bool | None,
+    alpha_curr: list[float],
+    alpha_prev: list[float] | None,
+) -> str:
+    """Carry out a task-end decision on subspace ``name`` and say which it was: keep the new
+    anchor and store ``alpha_curr`` for the task, or prune it and store ``alpha_prev`` (its
+    last weight, the new anchor's, dropped); ``keep_new`` None: the subspace's first anchor,
+    nothing to compare."""
+    task = module.task_index
+    if keep_new is False:
+        module.prune_last_anchor(name)
+        module.set_task_alpha(task, name, torch.tensor(alpha_prev[:-1]))
+        return "prune"
+    module.set_task_alpha(task, name, torch.tensor(alpha_curr))
+    return "first" if keep_new is None else "keep"
+
+
+def decide_subspaces(
+    trainer: L.Trainer, module, decide: Callable[[str, object], dict]
+) -> list[dict]:
+    """A pruning callback's task end: ``decide(name, result)`` for every subspace the search
+    just scored (the module's task record), then every weight frozen and the decisions
+    logged."""
+    decisions = [decide(name, res) for name, res in module.task_record.searches.items()]
+    module.freeze_all()
+    log_decisions(trainer, module, decisions)
+    return decisions
 
 
 def log_decisions(trainer: L.Trainer, module, decisions: list[dict]) -> None:

@@ -15,7 +15,8 @@ from ..decisions import pac_rate, zero_shot
 from ..nn import eval_mode
 from ..nn.subspace import sample_dirichlet
 from ..search import race_subspace, resolve_precision
-from .subspace import AnchorExtension, log_decisions, require_subspace_policy
+from .protocols import require_subspace_policy
+from .subspace import AnchorExtension, log_decisions
 
 
 class ZeroShotTransfer(L.Callback):

@@ -14,6 +14,7 @@ the notebook import it freely.
 ``results.json``          the stream's results: R, PER, BWT, FWT, MEM, anchors, alphas, table
 ``decisions.jsonl``       one JSON record per task-end decision (keep / prune / transfer)
 ``search/task_XX_S.npz``  the Dirichlet search of subspace S at the end of task XX
+``figures/``              the notebook's pictures of the run
 ``result.json``           a single-task fit's final evaluation
 ``config.yaml``           LightningCLI's copy of the whole configuration
 ``run.json``              the benchmark's record of a run it launched
@@ -61,6 +62,7 @@ class RunDir:
     RESULTS = "results.json"
     DECISIONS = "decisions.jsonl"
     SEARCH = "search"
+    FIGURES = "figures"
     RESULT = "result.json"
     CONFIG = "config.yaml"
     RUN_RECORD = "run.json"
@@ -104,6 +106,10 @@ class RunDir:
 
     def search_file(self, task: int, subspace: str) -> Path:
         return self.path / self.SEARCH / f"task_{task_label(task):02d}_{subspace}.npz"
+
+    @property
+    def figures_dir(self) -> Path:
+        return self.path / self.FIGURES
 
     @property
     def progress_file(self) -> Path:

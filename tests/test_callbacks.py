@@ -20,7 +20,7 @@ from hispo_pl.callbacks import (
     RolloutEvaluation,
     SubspacePruning,
 )
-from hispo_pl.callbacks.subspace import SearchResult
+from hispo_pl.callbacks.search import SearchResult
 from hispo_pl.config import BackboneConfig
 from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.modules.hbc import HBC
@@ -354,7 +354,7 @@ def test_periodic_search_rejects_a_negative_period():
 
 def test_refine_current_takes_a_better_point_of_the_grown_subspace():
     """The trained weights are replaced only by a point with a lower loss on the same batches."""
-    from hispo_pl.callbacks.subspace import SearchResult, _refine
+    from hispo_pl.callbacks.search import SearchResult, _refine
     from hispo_pl.decisions import extended_subspace_candidates
     from hispo_pl.search import race_candidates
 

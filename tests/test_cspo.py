@@ -15,7 +15,7 @@ from torch.utils.data import DataLoader
 
 import hispo_pl.modules.hispo as hispo_mod
 from hispo_pl.callbacks import AnchorExtension, SubspacePruning
-from hispo_pl.callbacks.subspace import SearchResult
+from hispo_pl.callbacks.search import SearchResult
 from hispo_pl.cli import main
 from hispo_pl.config import BackboneConfig
 from hispo_pl.metrics import module_bytes

@@ -38,7 +38,7 @@ class Interrupted(Exception):
 
 
 def _loop(run_dir, stream=STREAM, stop_at: int | None = None, seed: int | None = SEED):
-    """A loop built like ``cli.run_stream_from_cli``: shared callbacks, a fresh Trainer and
+    """A loop built like ``cli_stream.run_stream_from_cli``: shared callbacks, a fresh Trainer and
     datamodule per task; ``make_trainer`` raises at task ``stop_at``."""
     L.seed_everything(SEED, verbose=False)
     module = HiSPO(**SIZES)

@@ -7,10 +7,9 @@ from pathlib import Path
 
 import nbformat
 import pytest
+from helpers import fit_tiny_stream
 from nbclient import NotebookClient
 from nbclient.exceptions import CellExecutionError
-
-from hispo_pl.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOK = ROOT / "notebooks" / "anchor_weights.ipynb"
@@ -56,28 +55,8 @@ def test_notebook_is_committed_without_outputs():
 
 
 def test_notebook_plots_a_real_stream_run(tiny_umaze, tmp_path, monkeypatch):
-    args = [
-        "fit",
-        "--config",
-        str(ROOT / "configs/streams/pointmaze-1.yaml"),
-        "--config",
-        str(ROOT / "configs/methods/hispo.yaml"),
-        "--data.stream",
-        json.dumps(STREAM),
-        "--trainer.max_steps",
-        "5",
-        "--data.batch_size",
-        "64",
-        "--trainer.logger.init_args.save_dir",
-        str(tmp_path),
-        "--trainer.callbacks",
-        json.dumps(CALLBACKS),
-        "--trainer.enable_progress_bar",
-        "false",
-    ]
-    assert main(args) == 0
-    run_dir = tmp_path / "pointmaze-1" / "seed0"
-    results = json.loads((run_dir / "results.json").read_text())
+    callbacks = ("--trainer.callbacks", json.dumps(CALLBACKS))
+    results, run_dir = fit_tiny_stream("hispo", tmp_path, STREAM, *callbacks)
     assert results["stream"] == STREAM
     decisions = [
         json.loads(line) for line in (run_dir / "decisions.jsonl").read_text().splitlines()

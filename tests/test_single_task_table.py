@@ -1,6 +1,6 @@
 """The single-task study runs ``hispo-pl fit`` itself: its fit command is the product's CLI with
-the setting's overrides, a finished run's ``result.json`` is what the table reads, and the
-table rebuilds from committed files alone."""
+the setting's overrides, the benchmark's runner launches and skips its runs, a finished run's
+``result.json`` is what the table reads, and the table rebuilds from committed files alone."""
 
 from __future__ import annotations
 
@@ -11,7 +11,9 @@ from pathlib import Path
 
 import pytest
 
+from hispo_pl.benchmark import PlannedRun, finished_run_dirs, pending_runs
 from hispo_pl.cli import main as cli_main
+from hispo_pl.rundir import RunDir
 
 ROOT = Path(__file__).resolve().parents[1]
 spec = importlib.util.spec_from_file_location(
@@ -67,3 +69,31 @@ def test_table_is_mean_and_spread_over_seeds_from_the_files(tmp_path):
     assert "| pointmaze-medium-N[500] | 85.0 ± 5.0 (100) | – | 2 | 6000 |" in table
     assert (tmp_path / "table.md").read_text() == table
     assert len((tmp_path / "table.csv").read_text().splitlines()) == 3  # header + one per run
+
+
+def test_a_single_task_run_is_finished_by_its_result_file(tmp_path, capsys):
+    (setting,) = study.parse_settings([CONFIG], ["x="])
+    runs = study.plan_runs([setting], ["pointmaze-medium-N"], [0, 1], tmp_path, [])
+    assert all(isinstance(r, PlannedRun) and r.single_task for r in runs)
+    assert runs[0].results_path == runs[0].run_dir / "result.json"
+    runs[0].run_dir.mkdir(parents=True)
+    RunDir(runs[0].run_dir).write_result({"success": 1.0})
+    assert pending_runs(runs, stream=None) == runs[1:]
+    assert "x-pointmaze-medium/seed0: skipped, result.json exists" in capsys.readouterr().out
+    assert RunDir(runs[1].run_dir).read_run_record()["argv"] == list(runs[1].argv)
+    assert finished_run_dirs(tmp_path, RunDir.RESULT) == [runs[0].run_dir]
+    assert finished_run_dirs(tmp_path) == []  # a stream's results.json marks a stream run
+
+
+def test_main_launches_through_the_runner_and_skips_finished_runs(tiny_umaze, tmp_path, capsys):
+    args = ["--config", CONFIG, "--setting", "n=", "--tasks", "pointmaze-umaze-N[3]"]
+    args += ["--workers", "1", "--out", str(tmp_path), "--", "--trainer.max_steps", "3"]
+    args += ["--eval_episodes", "2", "--trainer.enable_progress_bar", "false"]
+    assert study.main(args) == 0
+    assert "[1/1] n-pointmaze-umaze seed 0: " in capsys.readouterr().out
+    run = RunDir(tmp_path / "runs" / "n-pointmaze-umaze" / "seed0")
+    assert run.read_result()["step"] == 3 and run.fit_log.exists()
+    assert study.main(args) == 0
+    printed = capsys.readouterr().out
+    assert "skipped, result.json exists" in printed
+    assert "| pointmaze-umaze-N[3] | " in printed

@@ -8,6 +8,8 @@ so the runner only skips runs whose ``results.json`` exists and reruns the other
 same command. Runs go to local worker processes or, with ``--launcher ray``, to Ray remote
 tasks. Afterwards ``OUT/table.md``, ``table.csv``, ``runtime.csv`` and ``perf_vs_memory.png``
 are rebuilt from every ``results.json`` under ``OUT/runs`` (``--report-only`` does just that).
+The same runner launches single-task fits, finished by their ``result.json``
+(``PlannedRun.single_task``; ``benchmarks/single_task_table.py``).
 
 Planning (methods, seeds, command lines) and aggregation (FWT against the SC run of the same
 seed, mean ± std over seeds, table text) are pure functions; only the launchers touch

@@ -10,19 +10,10 @@ from pathlib import Path
 
 from ..errors import Interrupted
 from ..io import atomic_write_text
+from . import plan
 from .configs import datasets_needed, prepare_datasets
 from .launch import Reporter, run_env, run_local, run_ray
 from .parser import build_parser, cpu_count
-from .plan import (
-    FIT_MODULE,
-    PLAN_FILE,
-    known_methods,
-    parse_seeds,
-    pending_runs,
-    plan_runs,
-    select_methods,
-    stream_config_path,
-)
 from .records import export_runs
 from .report import embed_reports, write_report
 
@@ -73,13 +64,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"no {config_dir / 'methods'}: run from the repository root or pass --config-dir"
         )
     try:
-        stream_config = stream_config_path(args.stream, config_dir)
-        methods = select_methods(args.methods, known_methods(config_dir))
-        seeds = parse_seeds(args.seeds)
+        stream_config = plan.stream_config_path(args.stream, config_dir)
+        methods = plan.select_methods(args.methods, plan.known_methods(config_dir))
+        seeds = plan.parse_seeds(args.seeds)
     except (ValueError, FileNotFoundError) as e:
         parser.error(str(e))
     workers = args.workers or max(1, cpu_count() // args.num_threads)
-    runs = plan_runs(
+    runs = plan.plan_runs(
         stream_config,
         config_dir,
         methods,
@@ -98,14 +89,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             state = "done" if run.results_path.exists() else "to run"
             print(f"[benchmark] {run.name} ({state}): {shlex.join(run.command(sys.executable))}")
             if run.method not in checked:  # seeds differ only in the seed and run dir
-                checked[run.method] = check_fit_args(list(run.argv[len(FIT_MODULE) :]))
+                checked[run.method] = check_fit_args(list(run.argv[len(plan.FIT_MODULE) :]))
             if checked[run.method] is not None:
                 problems += 1
                 print(f"[benchmark] {run.name}: invalid: {checked[run.method]}", file=sys.stderr)
         return 2 if problems else 0
     out.mkdir(parents=True, exist_ok=True)
     stream_name = stream_config.stem
-    plan = {
+    settings = {
         "stream": stream_name,
         "stream_config": str(stream_config),
         "methods": methods,
@@ -113,9 +104,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         "steps_per_task": args.steps_per_task,
         "extra": extra,
     }
-    atomic_write_text(out / PLAN_FILE, json.dumps(plan, indent=1))
+    atomic_write_text(out / plan.PLAN_FILE, json.dumps(settings, indent=1))
 
-    todo = pending_runs(runs, stream_name)
+    todo = plan.pending_runs(runs, stream_name)
     print(
         f"[benchmark] {len(runs)} runs ({len(methods)} methods x {len(seeds)} seeds), "
         f"{len(todo)} to run with the {args.launcher} launcher, {args.num_threads} thread(s) "

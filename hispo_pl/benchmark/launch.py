@@ -91,7 +91,7 @@ class Reporter:
         else:
             self.failed.append(run)
             why = f"exit {outcome['returncode']}" + (
-                f", no {RunDir.RESULTS}" if outcome["returncode"] == 0 else ""
+                f", no {run.results_path.name}" if outcome["returncode"] == 0 else ""
             )
             record_status(run, f"failed ({why}); log: {run.log_path}")
             tail = "\n".join("    " + line for line in outcome["log_tail"].splitlines())
@@ -195,7 +195,7 @@ def run_ray(
                 outcome = {"returncode": -1, "results": None, "log_tail": f"{e}"}
             if outcome["results"] is not None and not run.results_path.exists():
                 run.run_dir.mkdir(parents=True, exist_ok=True)
-                RunDir(run.run_dir).write_results(outcome["results"])
+                run.write_results(outcome["results"])
             report(run, outcome)
     except KeyboardInterrupt:
         for ref in pending:

@@ -134,6 +134,7 @@ class PlannedRun:
     argv: tuple[str, ...]  # the arguments after the interpreter: -m hispo_pl.cli fit ...
     steps_per_task: int | None = None
     configs: tuple[Path, ...] = ()  # the stream and method configs in argv, in order
+    single_task: bool = False  # a single-task fit (a study's run), finished by its result.json
 
     @property
     def name(self) -> str:
@@ -141,7 +142,14 @@ class PlannedRun:
 
     @property
     def results_path(self) -> Path:
-        return RunDir(self.run_dir).results_file
+        """The file that marks the run finished and holds what it found."""
+        run = RunDir(self.run_dir)
+        return run.result_file if self.single_task else run.results_file
+
+    def write_results(self, results: dict) -> None:
+        """Write the results a remote worker sent back."""
+        run = RunDir(self.run_dir)
+        (run.write_result if self.single_task else run.write_results)(results)
 
     @property
     def log_path(self) -> Path:
@@ -178,18 +186,18 @@ def plan_runs(
     return runs
 
 
-def pending_runs(runs: Sequence[PlannedRun], stream: str) -> list[PlannedRun]:
-    """The runs without a ``results.json`` (new or interrupted), each with a fresh
-    ``run.json`` (method, seed, budget, command); prints a line for each skipped or resumed
-    run, noting when its command changed since the first launch."""
+def pending_runs(runs: Sequence[PlannedRun], stream: str | None) -> list[PlannedRun]:
+    """The runs without results (:attr:`PlannedRun.results_path`: new or interrupted), each
+    with a fresh ``run.json`` (method, seed, stream, budget, command); prints a line for each
+    skipped or resumed run, noting when its command changed since the first launch."""
     todo = []
     for run in runs:
         run_dir = RunDir(run.run_dir)
         old = run_dir.read_run_record() if run_dir.run_record_file.exists() else None
         changed = old is not None and old.get("argv") != list(run.argv)
-        if run_dir.has_results():
+        if run.results_path.exists():
             note = " (it was launched with another command)" if changed else ""
-            print(f"[benchmark] {run.name}: skipped, {RunDir.RESULTS} exists{note}")
+            print(f"[benchmark] {run.name}: skipped, {run.results_path.name} exists{note}")
             continue
         if run_dir.progress_file.exists():
             note = "; note: the command differs from its first launch" if changed else ""

@@ -26,12 +26,14 @@ class RunRecord:
     decisions: list[dict] = field(default_factory=list)
 
 
-def finished_run_dirs(out: Path) -> list[Path]:
-    """Run folders with a ``results.json``: ``OUT/runs/<method>/seed<S>`` (where the benchmark
-    runs them) or ``OUT/<method>/seed<S>`` (an exported copy, e.g. under ``docs/results``)."""
+def finished_run_dirs(out: Path, results: str = RunDir.RESULTS) -> list[Path]:
+    """Run folders with a ``results.json`` (``results``: the file that marks a finished run,
+    ``RunDir.RESULT`` for single-task fits): ``OUT/runs/<method>/seed<S>`` (where the
+    benchmark runs them) or ``OUT/<method>/seed<S>`` (an exported copy, e.g. under
+    ``docs/results``)."""
     out = Path(out)
-    found = list(out.glob(f"{RUNS_DIR}/*/seed*/{RunDir.RESULTS}"))
-    found += [p for p in out.glob(f"*/seed*/{RunDir.RESULTS}") if p.parts[-3] != RUNS_DIR]
+    found = list(out.glob(f"{RUNS_DIR}/*/seed*/{results}"))
+    found += [p for p in out.glob(f"*/seed*/{results}") if p.parts[-3] != RUNS_DIR]
     return sorted(p.parent for p in found)
 
 

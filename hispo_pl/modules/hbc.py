@@ -16,6 +16,7 @@ from ..nn import fast
 from ..nn.hierarchy import Forward, HierarchicalPolicy
 from ..nn.mlp import GaussianPolicy
 from ..record import TaskRecord
+from ..rundir import task_label
 
 
 class GoalConditionedBC(L.LightningModule):
@@ -176,8 +177,8 @@ class GoalConditionedBC(L.LightningModule):
             lr = trainer.optimizers[0].param_groups[0]["lr"]
         return (
             f"training diverged: the loss is {float(loss)} at step {step} of task "
-            f"{self.task_index + 1} (learning rate {lr:g}); training stopped and nothing of "
-            "this task was saved. Lower the learning rate (--model.init_args.optim.lr, now "
+            f"{task_label(self.task_index)} (learning rate {lr:g}); training stopped and nothing "
+            "of this task was saved. Lower the learning rate (--model.init_args.optim.lr, now "
             f"{self.lr:g}), or check the data and the other hyperparameters."
         )
 
@@ -269,7 +270,7 @@ def check_finite_state(state_dict: dict[str, Tensor], task_index: int = 0) -> No
         if torch.is_tensor(tensor) and tensor.is_floating_point() and not tensor.isfinite().all():
             raise TrainingDivergedError(
                 f"training diverged: {name} holds NaN or infinite values at the end of task "
-                f"{task_index + 1}; nothing was saved. Lower the learning rate "
+                f"{task_label(task_index)}; nothing was saved. Lower the learning rate "
                 "(--model.init_args.optim.lr)."
             )
 

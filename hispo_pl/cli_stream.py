@@ -1,0 +1,98 @@
+"""``hispo-pl fit`` on a stream: the :class:`~hispo_pl.loop.ContinualLoop` built from
+LightningCLI's parsed configuration, with its run directory, per-task Trainers and datamodules."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from .data.datamodule import TaskDataModule
+from .run_checks import plain_config, run_fingerprint
+from .rundir import task_label
+
+if TYPE_CHECKING:
+    from .cli import HispoCLI
+
+
+def stream_run_dir(logger, root: str, stream, seed) -> Path:
+    """Where a stream's files go: the logger's own directory when it has one (TensorBoard,
+    CSV: ``runs/<name>/seed<S>``), else ``<root>/runs/<stream>/seed<S>`` (MLflow, W&B...)."""
+    log_dir = getattr(logger, "log_dir", None) if logger is not None else None
+    if log_dir:
+        return Path(log_dir)
+    name = stream if isinstance(stream, str) else "stream"
+    number = seed if isinstance(seed, int) and not isinstance(seed, bool) else 0
+    return Path(root) / "runs" / name / f"seed{number}"
+
+
+def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
+    """Build the ContinualLoop from the parsed config: per-task datamodules share the data
+    settings, per-task Trainers share the callbacks and the stream's logger."""
+    from lightning.pytorch.callbacks import ModelCheckpoint, ModelSummary, ProgressBar
+    from lightning.pytorch.cli import SaveConfigCallback
+
+    from .loop import ContinualLoop
+    from .metrics import module_bytes
+
+    config = cli.config[cli.subcommand]
+    data_args = dict(config["data"])
+    # the method's callbacks, shared by every task's Trainer; each Trainer adds its own defaults
+    defaults = (SaveConfigCallback, ModelCheckpoint, ModelSummary, ProgressBar)
+    callbacks = [cb for cb in cli.trainer.callbacks if not isinstance(cb, defaults)]
+    seed = config.get("seed_everything")  # the int LightningCLI seeded with, or False
+    run_dir = stream_run_dir(
+        cli.trainer.logger, cli.trainer.default_root_dir, config["data"]["stream"], seed
+    )
+
+    def make_datamodule(task: str) -> TaskDataModule:
+        return TaskDataModule(**{**data_args, "task": task, "stream": datamodule.stream})
+
+    first_trainer = [True]
+
+    def make_trainer(k: int):
+        """Task ``k``'s Trainer: the model summary once per stream, and progress as lines when
+        the output is not a terminal."""
+        from .console import StepLines, TaskProgressBar, interactive
+
+        extra: dict = {} if first_trainer[0] else {"enable_model_summary": False}
+        first_trainer[0] = False
+        task_callbacks = list(callbacks)
+        max_steps = config["trainer"].get("max_steps") or 0
+        label = f"task {task_label(k)}/{len(datamodule.stream)}"
+        if max_steps > 0 and not interactive():
+            task_callbacks.append(StepLines(label, every=max(1, max_steps // 10)))
+            extra["enable_progress_bar"] = False
+        elif max_steps > 0 and config["trainer"].get("enable_progress_bar") is not False:
+            task_callbacks.append(TaskProgressBar(label))
+        return cli.instantiate_trainer(
+            callbacks=task_callbacks,
+            enable_checkpointing=False,
+            default_root_dir=run_dir,
+            **extra,
+        )
+
+    reference = module_bytes(model.reference_model())  # MEM's unit: one single-task model
+    scratch = None
+    if config.get("scratch_results"):
+        R = json.loads(Path(config["scratch_results"]).read_text())["R"]
+        scratch = [R[k][k] for k in range(len(R))]
+    import yaml
+
+    plain = plain_config({k: v for k, v in config.as_dict().items() if k != "config"})
+    loop = ContinualLoop(
+        datamodule.stream,
+        model,
+        make_datamodule,
+        make_trainer,
+        run_dir,
+        reference,
+        scratch,
+        seed=seed if isinstance(seed, int) and not isinstance(seed, bool) else None,
+        fingerprint=run_fingerprint(plain),
+        config_text=yaml.safe_dump(plain, sort_keys=False),
+        checkpoint_every=int(config.get("checkpoint_every") or 0),
+    )
+    results = loop.run()
+    results["run_dir"] = str(run_dir)
+    return results
