@@ -43,3 +43,11 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(before)
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tiny_umaze, tmp_path_factory):
+    """A finished two-task FTN stream (tiny budgets): results and run dir."""
+    from helpers import fit_tiny_stream
+
+    return fit_tiny_stream("ftn", tmp_path_factory.mktemp("tiny_run"))

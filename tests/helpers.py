@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import lightning as L
+import torch
+
+from hispo_pl.config import BackboneConfig
+from hispo_pl.modules.hispo import HiSPO
 
 
 def quiet_trainer(max_steps: int, **kwargs) -> L.Trainer:
@@ -89,3 +94,64 @@ class DirlessLogger(L.pytorch.loggers.Logger):
 
     def log_hyperparams(self, params, *args, **kwargs) -> None:
         pass
+
+
+# --- a tiny HiSPO and its batches (test_hispo*.py) ---------------------------------------------
+
+HISPO_SIZES = {
+    "obs_dim": 4,
+    "action_dim": 2,
+    "backbone": BackboneConfig(high_hidden=8, low_hidden=16),
+}
+
+
+def tiny_hispo(seed: int = 0, **kw) -> HiSPO:
+    torch.manual_seed(seed)
+    return HiSPO(**{**HISPO_SIZES, **kw})
+
+
+def random_batch(n: int = 12, seed: int = 0) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    dims = {"observation": 4, "position": 2, "goal": 2, "subgoal": 2, "action": 2}
+    return {k: torch.randn(n, d, generator=g) for k, d in dims.items()}
+
+
+def perturb_newest(module: HiSPO, subspace: str, seed: int = 1, scale: float = 0.3) -> None:
+    """Move the newest anchor of a subspace away from the others (a "mean" anchor starts at
+    their centre, and LayerNorm anchors start identical), so that mixing weights matter."""
+    g = torch.Generator().manual_seed(seed)
+    k = module.n_anchors(subspace) - 1
+    with torch.no_grad():
+        for name, p in module.policies[subspace].named_parameters():
+            if name.endswith(f".{k}"):
+                p.add_(scale * torch.randn(p.shape, generator=g))
+
+
+def act_on(module: HiSPO, task: int | None, seed: int = 3) -> torch.Tensor:
+    b = random_batch(7, seed)
+    module.eval()
+    return module.act(b["observation"], b["position"], b["goal"], task=task)
+
+
+# --- a tiny benchmark (test_benchmark*.py) -------------------------------------------------------
+
+BENCH_TINY = ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"]
+BENCH_TINY_OVERRIDES = [
+    "--data.stream",
+    json.dumps(BENCH_TINY),
+    "--data.batch_size",
+    "64",
+    "--trainer.callbacks.init_args.episodes",  # the last callback: RolloutEvaluation
+    "2",
+]
+
+
+def benchmark_config_dir(tmp_path: Path, methods: list[str]) -> Path:
+    """A config dir with the pointmaze-1 stream and copies of the HiSPO method config."""
+    configs = tmp_path / "configs"
+    (configs / "methods").mkdir(parents=True)
+    (configs / "streams").mkdir()
+    shutil.copy(ROOT / "configs/streams/pointmaze-1.yaml", configs / "streams")
+    for m in methods:
+        shutil.copy(ROOT / "configs/methods/hispo.yaml", configs / "methods" / f"{m}.yaml")
+    return configs

@@ -1,45 +1,25 @@
-"""``hispo-pl benchmark``: planning and aggregation as pure functions, the launchers on fake
-commands, and two end-to-end runs on a tiny stream (local processes, a local Ray instance)."""
+"""``hispo-pl benchmark``: planning and aggregation as pure functions, the reports and the
+command's errors (the launchers and end-to-end runs: test_benchmark_runs.py)."""
 
 from __future__ import annotations
 
 import csv
 import io
 import json
-import shutil
 import sys
 from pathlib import Path
 
 import pytest
+from helpers import BENCH_TINY, BENCH_TINY_OVERRIDES, benchmark_config_dir
 
 from hispo_pl import benchmark as bm
 from hispo_pl.cli import main as cli_main
 
 ROOT = Path(__file__).resolve().parents[1]
 NAN = None  # JSON's null above the diagonal of R
-TINY = ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"]
-TINY_OVERRIDES = [
-    "--data.stream",
-    json.dumps(TINY),
-    "--data.batch_size",
-    "64",
-    "--trainer.callbacks.init_args.episodes",  # the last callback: RolloutEvaluation
-    "2",
-]
 
 
 # --- planning ---------------------------------------------------------------------------------
-
-
-def _config_dir(tmp_path: Path, methods: list[str]) -> Path:
-    """A config dir with the pointmaze-1 stream and copies of the HiSPO method config."""
-    configs = tmp_path / "configs"
-    (configs / "methods").mkdir(parents=True)
-    (configs / "streams").mkdir()
-    shutil.copy(ROOT / "configs/streams/pointmaze-1.yaml", configs / "streams")
-    for m in methods:
-        shutil.copy(ROOT / "configs/methods/hispo.yaml", configs / "methods" / f"{m}.yaml")
-    return configs
 
 
 def test_parse_seeds():
@@ -53,7 +33,7 @@ def test_parse_seeds():
 
 
 def test_select_methods_all_list_and_unknown(tmp_path):
-    configs = _config_dir(tmp_path, ["scn", "hispo", "bc-sc1"])
+    configs = benchmark_config_dir(tmp_path, ["scn", "hispo", "bc-sc1"])
     known = bm.known_methods(configs)
     assert known == ["bc-sc1", "hispo", "scn"]
     assert bm.select_methods("all", known) == known
@@ -63,7 +43,7 @@ def test_select_methods_all_list_and_unknown(tmp_path):
 
 
 def test_stream_config_path(tmp_path):
-    configs = _config_dir(tmp_path, ["hispo"])
+    configs = benchmark_config_dir(tmp_path, ["hispo"])
     path = bm.stream_config_path("pointmaze-1", configs)
     assert path == (configs / "streams/pointmaze-1.yaml").resolve()
     assert bm.stream_config_path(str(path), tmp_path / "elsewhere") == path
@@ -92,7 +72,7 @@ def test_configured_value_and_datasets_needed(tmp_path):
         "pointmaze-large": 500,
         "pointmaze-medium": 500,
     }
-    assert bm.datasets_needed([stream], TINY_OVERRIDES) == {"pointmaze-umaze": 3}
+    assert bm.datasets_needed([stream], BENCH_TINY_OVERRIDES) == {"pointmaze-umaze": 3}
     d4rl = ["--data.dataset", "D4RL/pointmaze/umaze-v2"]
     assert bm.datasets_needed([stream], d4rl) == {}  # not ours to generate
 
@@ -110,7 +90,7 @@ def test_prepare_datasets_generates_only_the_missing_ones(tiny_umaze, monkeypatc
 
 
 def test_plan_runs_builds_fit_commands(tmp_path):
-    configs = _config_dir(tmp_path, ["hispo", "scn"])
+    configs = benchmark_config_dir(tmp_path, ["hispo", "scn"])
     stream = bm.stream_config_path("pointmaze-1", configs)
     out = tmp_path / "out"
     runs = bm.plan_runs(stream, configs, ["scn", "hispo"], [0, 4], out, 2, 123, ["--a", "1"])
@@ -163,7 +143,7 @@ def test_plan_runs_builds_fit_commands(tmp_path):
 def _results(diag, final, mem=None, anchors=None, minutes=1.0) -> dict:
     """results.json of a 2-task stream: R = [[d0, null], [f0, f1]] with f1 = d1."""
     out = {
-        "stream": TINY,
+        "stream": BENCH_TINY,
         "R": [[diag[0], NAN], [final[0], diag[1]]],
         "wall_time_s": [30 * minutes, 30 * minutes],
     }
@@ -347,7 +327,7 @@ def test_cli_help_and_errors(tmp_path, capsys):
     assert (
         "--steps-per-task" in help_text and "100000" in help_text and "--report-only" in help_text
     )
-    configs = _config_dir(tmp_path, ["hispo"])
+    configs = benchmark_config_dir(tmp_path, ["hispo"])
     for args, message in (
         (["--stream", "pointmaze-1", "--methods", "ewc"], "unknown method(s) ewc; known"),
         (["--methods", "hispo"], "--stream is required"),
@@ -362,7 +342,7 @@ def test_cli_help_and_errors(tmp_path, capsys):
 
 
 def test_dry_run_prints_commands_and_writes_nothing(tmp_path, capsys):
-    configs = _config_dir(tmp_path, ["hispo", "scn"])
+    configs = benchmark_config_dir(tmp_path, ["hispo", "scn"])
     out = tmp_path / "out"
     args = ["benchmark", "--stream", "pointmaze-1", "--seeds", "0,4", "--out", str(out)]
     extra = ["--", "--trainer.max_steps", "7"]
@@ -374,118 +354,3 @@ def test_dry_run_prints_commands_and_writes_nothing(tmp_path, capsys):
     # the overrides are checked as fit would parse them
     assert cli_main([*args, "--config-dir", str(configs), "--dry-run", "--", "--x", "1"]) == 2
     assert "--x" in capsys.readouterr().err
-
-
-# --- launchers on fake commands ---------------------------------------------------------------
-
-
-def _fake_run(tmp_path: Path, name: str, code: str) -> bm.PlannedRun:
-    run_dir = tmp_path / "runs" / name / "seed0"
-    return bm.PlannedRun(name, 0, run_dir, ("-c", code))
-
-
-def test_run_local_reports_failures_and_continues(tmp_path, capsys):
-    ok = _fake_run(
-        tmp_path,
-        "ok",
-        "import json, pathlib; print('training');"
-        f"pathlib.Path({str(tmp_path / 'runs/ok/seed0/results.json')!r}).write_text("
-        "json.dumps({'PER': 0.5, 'wall_time_s': [60, 60]}))",
-    )
-    bad = _fake_run(tmp_path, "bad", "import sys; print('step 1'); print('boom'); sys.exit(3)")
-    silent = _fake_run(tmp_path, "silent", "pass")  # exit 0 without results.json
-    reporter = bm.Reporter(total=3)
-    bm.run_local([bad, ok, silent], 2, reporter, {"PYTHONUNBUFFERED": "1"})
-    reporter.close()
-    out = capsys.readouterr().out
-    assert "[benchmark] ok seed 0: PER 50.0  2.0 min" in out
-    assert f"FAILED bad seed 0 (exit 3); log: {bad.log_path}" in out
-    assert "    step 1\n    boom" in out
-    assert "FAILED silent seed 0 (exit 0, no results.json)" in out
-    assert {r.name for r in reporter.failed} == {"bad/seed0", "silent/seed0"}
-    assert "training" in ok.log_path.read_text()
-
-
-# --- end to end on the tiny stream ------------------------------------------------------------
-
-
-def _benchmark_args(configs: Path, out: Path, methods: str, *launcher: str) -> list[str]:
-    return [
-        "benchmark",
-        "--stream",
-        "pointmaze-1",
-        "--methods",
-        methods,
-        "--seeds",
-        "1",
-        "--out",
-        str(out),
-        "--config-dir",
-        str(configs),
-        "--steps-per-task",
-        "5",
-        "--workers",
-        "2",
-        "--num-threads",
-        "1",
-        *launcher,
-        "--",
-        *TINY_OVERRIDES,
-    ]
-
-
-def test_benchmark_local_end_to_end_and_skip(tiny_umaze, tmp_path, capsys):
-    configs = _config_dir(tmp_path, ["hispo", "scn"])
-    out = tmp_path / "out"
-    assert cli_main(_benchmark_args(configs, out, "all")) == 0
-    printed = capsys.readouterr().out
-    assert "2 runs (2 methods x 1 seeds), 2 to run" in printed
-    assert "[benchmark] hispo seed 0: PER" in printed and "[benchmark] scn seed 0: PER" in printed
-    for method in ("hispo", "scn"):
-        run_dir = out / "runs" / method / "seed0"
-        results = json.loads((run_dir / "results.json").read_text())
-        assert results["stream"] == TINY and len(results["R"]) == 2
-        meta = json.loads((run_dir / "run.json").read_text())
-        assert meta["steps_per_task"] == 5 and "--num_threads 1" in meta["command"]
-        assert "=== " in (run_dir / "fit.log").read_text()
-    rows = {r["method"]: r for r in csv.DictReader((out / "table.csv").open())}
-    assert set(rows) == {"hispo", "scn"}
-    assert rows["scn"]["FWT_mean"] == "0.0" and rows["hispo"]["FWT_mean"] != ""
-    assert rows["hispo"]["anchors_high_mean"] != "" and rows["hispo"]["seeds"] == "1"
-    assert "| hispo | 1 |" in (out / "table.md").read_text()
-    runtime = list(csv.DictReader((out / "runtime.csv").open()))
-    assert [(r["method"], r["steps_per_task"]) for r in runtime] == [("hispo", "5"), ("scn", "5")]
-    assert (out / "perf_vs_memory.png").stat().st_size > 0
-
-    # the same command again, scn as if interrupted after its last task (results.json not
-    # yet written): hispo is skipped with its log untouched, scn resumes with the same command
-    log = out / "runs/hispo/seed0/fit.log"
-    before = log.stat().st_mtime_ns, log.read_text()
-    (out / "runs/scn/seed0/results.json").unlink()
-    assert cli_main(_benchmark_args(configs, out, "all")) == 0
-    printed = capsys.readouterr().out
-    assert "hispo/seed0: skipped, results.json exists" in printed
-    assert "scn/seed0: resuming an interrupted run" in printed and "1 to run" in printed
-    assert (log.stat().st_mtime_ns, log.read_text()) == before
-    scn_log = (out / "runs/scn/seed0/fit.log").read_text()
-    assert scn_log.count("=== ") == 2 and "tasks 1..2 already trained" in scn_log
-    assert (out / "runs/scn/seed0/results.json").exists()
-
-
-def test_benchmark_ray_end_to_end(tiny_umaze, tmp_path, capsys):
-    pytest.importorskip("ray")
-    configs = _config_dir(tmp_path, ["hispo"])
-    out = tmp_path / "out"
-    args = _benchmark_args(configs, out, "hispo", "--launcher", "ray", "--address", "local")
-    assert cli_main(args) == 0
-    printed = capsys.readouterr().out
-    assert "1 to run with the ray launcher" in printed
-    assert "[benchmark] hispo seed 0: PER" in printed
-    results = json.loads((out / "runs/hispo/seed0/results.json").read_text())
-    assert results["stream"] == TINY
-    table = (out / "table.md").read_text()
-    assert "| hispo | 1 |" in table and "¹ hispo: no FWT, no scn or sc1 run" in table
-
-    import ray
-
-    assert not ray.is_initialized()  # the runner shut down the instance it started
