@@ -105,9 +105,10 @@ HISPO_SIZES = {
 }
 
 
-def tiny_hispo(seed: int = 0, **kw) -> HiSPO:
+def tiny_hispo(seed: int = 0, cls: type[HiSPO] = HiSPO, **kw) -> HiSPO:
+    """A tiny HiSPO, or a subclass of it (``cls``), with seeded initial weights."""
     torch.manual_seed(seed)
-    return HiSPO(**{**HISPO_SIZES, **kw})
+    return cls(**{**HISPO_SIZES, **kw})
 
 
 def random_batch(n: int = 12, seed: int = 0) -> dict[str, torch.Tensor]:

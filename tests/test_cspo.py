@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from helpers import quiet_trainer, tiny_stream_args
+from helpers import HISPO_SIZES, quiet_trainer, random_batch, tiny_hispo, tiny_stream_args
 from torch.utils.data import DataLoader
 
 import hispo_pl.modules.hispo as hispo_mod
@@ -27,21 +27,13 @@ from hispo_pl.nn.mlp import gaussian_nll
 from hispo_pl.tasks import FAMILIES
 
 ROOT = Path(__file__).resolve().parents[1]
-SIZES = {"obs_dim": 4, "action_dim": 2, "backbone": BackboneConfig(high_hidden=8, low_hidden=16)}
 LEVELS = ("high", "low")
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _module(seed: int = 0, **kw) -> CSPO:
-    torch.manual_seed(seed)
-    return CSPO(**{**SIZES, **kw})
-
-
-def _batch(n: int = 12, seed: int = 0) -> dict[str, torch.Tensor]:
-    g = torch.Generator().manual_seed(seed)
-    dims = {"observation": 4, "position": 2, "goal": 2, "subgoal": 2, "action": 2}
-    return {k: torch.randn(n, d, generator=g) for k, d in dims.items()}
+    return tiny_hispo(seed, CSPO, **kw)
 
 
 def _perturb_newest(module: HiSPO, seed: int = 1, scale: float = 0.3) -> None:
@@ -61,14 +53,14 @@ def _anchor_params(module: HiSPO, level: str, k: int) -> set[str]:
 
 
 def _act(module: HiSPO, task: int | None, seed: int = 3) -> torch.Tensor:
-    b = _batch(7, seed)
+    b = random_batch(7, seed)
     module.eval()
     return module.act(b["observation"], b["position"], b["goal"], task=task)
 
 
 def _manual_act(module: HiSPO, alpha: torch.Tensor, seed: int = 3) -> torch.Tensor:
     """Both levels mixed with the same weights ``alpha``."""
-    b = _batch(7, seed)
+    b = random_batch(7, seed)
     with torch.no_grad():
         offset, _ = module.policies["high"](
             high_input(b["observation"], b["position"], b["goal"]), alpha
@@ -91,7 +83,7 @@ def test_one_subspace_named_policy_with_one_score_and_one_row_of_weights():
         "scores.policy",
         "task_alpha_policy",
     }
-    hispo = HiSPO(**SIZES)  # the same networks, parameter for parameter
+    hispo = HiSPO(**HISPO_SIZES)  # the same networks, parameter for parameter
     assert {k for k in sd if k.startswith("policies")} == {
         k for k in hispo.state_dict() if k.startswith("policies")
     }
@@ -182,7 +174,7 @@ def test_one_weight_draw_per_step_shared_by_both_levels(monkeypatch):
     _perturb_newest(m)
     with torch.no_grad():
         m.scores["policy"].copy_(torch.tensor([0.5, -0.4]))
-    batch = _batch(12)
+    batch = random_batch(12)
     out = m.losses(batch)
     assert len(seen) == 1 and seen[0].shape == (3, 2)  # one draw (3 groups) for both levels
     alphas = seen[0]
@@ -211,11 +203,11 @@ def _three_anchor_module() -> CSPO:
 def test_score_alphas_is_the_sum_of_both_levels_losses(loss):
     m = _three_anchor_module()
     alphas = torch.tensor([[1.0, 0.0, 0.0], [0.2, 0.3, 0.5], [0.0, 0.0, 1.0], [0.5, 0.5, 0.0]])
-    batch = _batch(20)
+    batch = random_batch(20)
     scores = m.score_alphas("policy", alphas, batch, loss=loss, chunk=3)
     assert scores.shape == (4,) and len(set(scores.tolist())) == 4
 
-    hispo = HiSPO(**SIZES)  # the same networks as two subspaces: each level's loss alone
+    hispo = HiSPO(**HISPO_SIZES)  # the same networks as two subspaces: each level's loss alone
     for level in LEVELS:
         hispo.policies[level].net.set_n_anchors(3)
     hispo.load_state_dict(
@@ -230,7 +222,7 @@ def test_score_alphas_is_the_sum_of_both_levels_losses(loss):
 def test_score_alphas_matches_a_manual_sum_of_squared_errors():
     m = _three_anchor_module()
     alpha = torch.tensor([0.2, 0.3, 0.5])
-    batch = _batch(9)
+    batch = random_batch(9)
     expected = 0.0
     with torch.no_grad():
         for level in LEVELS:
@@ -270,7 +262,7 @@ def test_act_mixes_both_levels_with_the_tasks_weights():
 def test_checkpoint_round_trip_acts_identically_on_every_task(tmp_path):
     m = _three_task_module()
     m.add_anchor("policy")  # a fourth task in progress: its pair and scores train below
-    batches = [_batch(16, seed=s) for s in range(3)]
+    batches = [random_batch(16, seed=s) for s in range(3)]
     trainer = quiet_trainer(max_steps=3)
     trainer.fit(m, train_dataloaders=DataLoader(batches, batch_size=None))
     path = tmp_path / "task_04.ckpt"
@@ -298,7 +290,7 @@ def test_memory_of_a_kept_anchor_pair_is_one_hbc():
     one = module_bytes(m)
     m.add_anchor("policy")
     # one more anchor: both networks once, and one more float32 score
-    assert module_bytes(m) - one == module_bytes(HBC(**SIZES)) + 4
+    assert module_bytes(m) - one == module_bytes(HBC(**HISPO_SIZES)) + 4
 
 
 # --- a short stream end to end, for both ablations ----------------------------------------------

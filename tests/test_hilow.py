@@ -7,10 +7,9 @@ from __future__ import annotations
 import pytest
 import torch
 import torch.nn.functional as F
-from helpers import quiet_trainer
+from helpers import HISPO_SIZES, act_on, quiet_trainer, random_batch, tiny_hispo
 from torch.utils.data import DataLoader
 
-from hispo_pl.config import BackboneConfig
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.hbc import GoalConditionedBC
 from hispo_pl.modules.hilow import HiLOW
@@ -19,7 +18,6 @@ from hispo_pl.nn.lowrank import LowRankSubspaceLinear, low_rank_
 from hispo_pl.nn.subspace import SubspaceLinear, sample_dirichlet, subspace_layers
 
 IN, OUT, RANK, K, M, B = 12, 10, 3, 4, 5, 7
-SIZES = {"obs_dim": 4, "action_dim": 2, "backbone": BackboneConfig(high_hidden=8, low_hidden=16)}
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -185,20 +183,7 @@ def test_low_rank_conversion_keeps_the_outputs():
 
 
 def _module(seed: int = 0, **kw) -> HiLOW:
-    torch.manual_seed(seed)
-    return HiLOW(**SIZES, rank=RANK, **kw)
-
-
-def _batch(n: int = 12, seed: int = 0) -> dict[str, torch.Tensor]:
-    g = _gen(seed)
-    dims = {"observation": 4, "position": 2, "goal": 2, "subgoal": 2, "action": 2}
-    return {k: torch.randn(n, d, generator=g) for k, d in dims.items()}
-
-
-def _act(module: HiSPO, task: int | None, seed: int = 3) -> torch.Tensor:
-    b = _batch(7, seed)
-    module.eval()
-    return module.act(b["observation"], b["position"], b["goal"], task=task)
+    return tiny_hispo(seed, HiLOW, rank=RANK, **kw)
 
 
 def _perturb_newest(module: HiLOW, subspace: str, seed: int = 1, scale: float = 0.3) -> None:
@@ -220,21 +205,21 @@ def test_every_linear_layer_is_low_rank_and_the_module_is_a_subspace_policy():
         assert not any(type(layer) is SubspaceLinear for layer in layers)
     assert m.hparams.rank == RANK and m.hparams.anchor_init == "first"
     with pytest.raises(ValueError, match="'first' or 'random'"):
-        HiLOW(**SIZES, anchor_init="mean")
+        HiLOW(**HISPO_SIZES, anchor_init="mean")
 
 
 def test_first_task_is_hispo_exactly():
     hilow = _module(seed=4)
     torch.manual_seed(4)
-    hispo = HiSPO(**SIZES)
+    hispo = HiSPO(**HISPO_SIZES)
     assert module_bytes(hilow) == module_bytes(hispo)
     hilow_sd, hispo_sd = hilow.state_dict(), hispo.state_dict()
     assert len(hilow_sd) == len(hispo_sd)
     for key, value in hispo_sd.items():  # SubspaceLinear's weights.0 is HiLOW's weight
         assert torch.equal(hilow_sd[key.replace(".weights.0", ".weight")], value), key
     for task in (0, None):
-        assert torch.equal(_act(hilow, task), _act(hispo, task))
-    batch = _batch(16)
+        assert torch.equal(act_on(hilow, task), act_on(hispo, task))
+    batch = random_batch(16)
     alphas = torch.ones(1, 1)
     for name in SUBSPACES:
         assert torch.equal(
@@ -248,7 +233,7 @@ def test_a_new_anchor_of_the_module_is_the_first_one(name):
     m.add_anchor(name)
     _perturb_newest(m, name)  # anchor 2 away from θ_1
     m.add_anchor(name)  # anchor 3: θ_1 again (zero offset, copied biases and affines)
-    x, _ = m.policies.inputs(name, _batch(10))
+    x, _ = m.policies.inputs(name, random_batch(10))
     e = torch.eye(3)
     first, second, third = (m.policies[name](x, e[k])[0] for k in range(3))
     torch.testing.assert_close(third, first)
@@ -261,7 +246,7 @@ def test_cosine_regulariser_reaches_the_newest_factors():
     m = _module(cosine_weight=0.5)
     m.add_anchor("low")
     _perturb_newest(m, "low")
-    out = m.losses(_batch(16))
+    out = m.losses(random_batch(16))
     assert 0 < out["cosine"] <= 2  # a sum of two means of squared cosines
     out["loss"].backward()
     head = m.policies["low"].net.head
@@ -291,14 +276,14 @@ def test_only_the_newest_anchor_trains_after_two_extensions():
     before = {n: p.detach().clone() for n, p in m.named_parameters()}
     opt = torch.optim.Adam([p for p in m.parameters() if p.requires_grad], lr=1e-2)
     m.train()
-    m.losses(_batch(32))["loss"].backward()
+    m.losses(random_batch(32))["loss"].backward()
     opt.step()
     for n, p in m.named_parameters():
         assert torch.equal(p, before[n]) == (n not in trainable), n
 
 
 def test_stored_bytes_with_four_anchors_are_below_hispos():
-    hilow, hispo = _module(), HiSPO(**SIZES)
+    hilow, hispo = _module(), HiSPO(**HISPO_SIZES)
     for module in (hilow, hispo):
         for _ in range(3):
             for name in SUBSPACES:
@@ -344,7 +329,7 @@ def _three_task_module() -> HiLOW:
 def test_checkpoint_round_trip_restores_every_task(tmp_path):
     m = _three_task_module()
     m.add_anchor("high")  # a fourth high anchor, trained below
-    batches = [_batch(16, seed=s) for s in range(3)]
+    batches = [random_batch(16, seed=s) for s in range(3)]
     trainer = quiet_trainer(max_steps=3)
     trainer.fit(m, train_dataloaders=DataLoader(batches, batch_size=None))
     path = tmp_path / "task_03.ckpt"
@@ -364,5 +349,5 @@ def test_checkpoint_round_trip_restores_every_task(tmp_path):
         for k, v in expected.items():
             assert torch.equal(got[k], v), k
         for task in (0, 1, 2, None):
-            assert torch.equal(_act(loaded, task), _act(m, task)), task
-    assert not torch.equal(_act(m, 0), _act(m, 1))  # the tasks really act differently
+            assert torch.equal(act_on(loaded, task), act_on(m, task)), task
+    assert not torch.equal(act_on(m, 0), act_on(m, 1))  # the tasks really act differently
