@@ -22,13 +22,13 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
 
+from .envs.family import family_behaviour
 from .envs.videogame.layouts import (
     AMAZEVILLE_MAP,
     HIGH_BLOCK,
     SIMPLETOWN_DOORS,
     SIMPLETOWN_WALL_ROWS,
     Layout,
-    layout,
 )
 from .tasks import Task, parse_task
 
@@ -118,7 +118,7 @@ def game_cell_kinds(game: str, lay: Layout) -> dict[str, np.ndarray]:
     }
 
 
-def _draw_cells(ax: Axes, mask: np.ndarray, corner, size: float, kind: str) -> None:
+def draw_cells(ax: Axes, mask: np.ndarray, corner, size: float, kind: str) -> None:
     """The cells of ``mask`` as rectangles of style ``kind``; ``corner(row, col)`` is a
     cell's lower-left (x, y) in world coordinates (rows run down the map) and ``size`` its
     side."""
@@ -129,78 +129,13 @@ def _draw_cells(ax: Axes, mask: np.ndarray, corner, size: float, kind: str) -> N
         ax.add_patch(rect)
 
 
-def _draw_game_maze(ax: Axes, task: Task) -> None:
-    lay = layout(task.family, task.maze)
-    half = lay.cell / 2
-
-    def corner(r: int, c: int) -> tuple[float, float]:
-        x, y = lay.cell_centre(r, c)
-        return x - half, y - half
-
-    for kind, mask in game_cell_kinds(task.family, lay).items():
-        _draw_cells(ax, mask, corner, lay.cell, kind)
-    starts, goals = np.asarray(lay.starts), np.asarray(lay.goals)
-    if lay.segments:  # points are drawn uniformly along these segments
-        for pts, colour, gid in ((starts, START, "start-segment"), (goals, GOAL, "goal-segment")):
-            (line,) = ax.plot(pts[:, 0], pts[:, 1], color=colour, lw=3, alpha=0.8, zorder=3)
-            line.set_gid(gid)
-    else:
-        for pts, colour, marker, gid in (
-            (starts, START, "^", "starts"),
-            (goals, GOAL, "*", "goals"),
-        ):
-            (line,) = ax.plot(
-                pts[:, 0],
-                pts[:, 1],
-                ls="none",
-                marker=marker,
-                ms=9,
-                mfc=colour,
-                mec="white",
-                mew=0.8,
-                zorder=4,
-            )
-            line.set_gid(gid)
-    width, depth = lay.size
-    ax.set_xlim(0, width)
-    ax.set_ylim(0, depth)
-
-
-def _draw_robotics_maze(ax: Axes, task: Task) -> None:
-    """A gymnasium-robotics maze: its wall cells, in the env's own maze coordinates (starts
-    and goals are random free cells, so none are marked)."""
-    from .envs import make_env
-    from .envs.mazes import cell_to_xy, maze_array
-
-    env = make_env(task)
-    try:
-        grid = maze_array(env)
-        size = float(env.unwrapped.maze.maze_size_scaling)
-
-        def corner(r: int, c: int) -> tuple[float, float]:
-            x, y = cell_to_xy(env, np.array([r, c]))
-            return x - size / 2, y - size / 2
-
-        _draw_cells(ax, grid == 1, corner, size, "wall")
-        rows, cols = grid.shape
-        left, top = cell_to_xy(env, np.array([0, 0])) + [-size / 2, size / 2]
-        right, bottom = cell_to_xy(env, np.array([rows - 1, cols - 1])) + [size / 2, -size / 2]
-    finally:
-        env.close()
-    ax.set_xlim(left, right)
-    ax.set_ylim(bottom, top)
-
-
 def draw_maze(ax: Axes, task: str | Task) -> None:
     """Draw ``task``'s maze from above on ``ax`` in world coordinates: floor, walls, doors
     (closed hatched, open dashed), blocks (dark hatched = 3 m, light = 1 m), start and goal
     points (triangles / stars) or segments (lines). The variant changes nothing visible."""
     task = parse_task(task)
     ax.set_facecolor(FLOOR)
-    if task.env_family.game:
-        _draw_game_maze(ax, task)
-    else:
-        _draw_robotics_maze(ax, task)
+    family_behaviour(task).draw_maze(ax, task)
     ax.set_aspect("equal")
     ax.set_xticks([])
     ax.set_yticks([])
