@@ -75,7 +75,7 @@ class GameMazes:
     def draw_maze(self, ax, task: Task) -> None:
         """Walls, doors and blocks of the layout, and its start and goal points (markers) or
         segments (lines)."""
-        from ..render import GOAL, START, draw_cells, game_cell_kinds
+        from .drawing import GOAL, START, draw_cells, game_cell_kinds
         from .videogame.layouts import layout
 
         lay = layout(task.family, task.maze)

@@ -102,8 +102,8 @@ class RoboticsMazes:
     def draw_maze(self, ax, task: Task) -> None:
         """Its wall cells, in the env's own maze coordinates (starts and goals are random free
         cells, so none are marked)."""
-        from ..render import draw_cells
         from . import make_env
+        from .drawing import draw_cells
 
         env = make_env(task)
         try:
