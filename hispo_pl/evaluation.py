@@ -10,8 +10,8 @@ import torch
 from tqdm.auto import tqdm
 
 from .data.sampler import position_velocity
-from .envs import agent_flipped, make_env
-from .envs.mazes import free_cells, maze_array
+from .envs import agent_flipped, env_task, make_env
+from .envs.family import family_behaviour
 from .nn import eval_mode
 from .tasks import Task, parse_task
 
@@ -36,25 +36,10 @@ class RolloutResult:
         return float(self.flips.mean())
 
 
-def start_goal_cells(grid: np.ndarray, episodes: int, seed: int) -> np.ndarray:
-    """Seeded random (start, goal) pairs of distinct free cells, shape [episodes, 2, 2]."""
-    cells = free_cells(grid)
-    rng = np.random.default_rng(seed)
-    pick = np.stack([rng.choice(len(cells), 2, replace=False) for _ in range(episodes)])
-    return cells[pick]
-
-
 def reset_options(env, episodes: int, seed: int) -> list[dict]:
-    """Seeded start and goal of each evaluation episode as ``env.reset`` options: distinct free
-    cells of a gymnasium-robotics maze, or a video-game layout's start and goal points."""
-    from .envs.videogame import GameNavEnv
-
-    if isinstance(env.unwrapped, GameNavEnv):
-        rng = np.random.default_rng(seed)
-        draws = [env.unwrapped.layout.sample_start_goal(rng) for _ in range(episodes)]
-        return [{"start": start, "goal": goal} for start, goal in draws]
-    cells = start_goal_cells(maze_array(env), episodes, seed)
-    return [{"reset_cell": start, "goal_cell": goal} for start, goal in cells]
+    """Seeded start and goal of each evaluation episode as ``env.reset`` options, drawn as
+    the family of ``env``'s task draws them."""
+    return family_behaviour(env_task(env)).reset_options(env, episodes, seed)
 
 
 class RolloutEvaluator:

@@ -20,45 +20,14 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
-from matplotlib.patches import Patch, Rectangle
+from matplotlib.patches import Patch
 
-from .envs.videogame.layouts import (
-    AMAZEVILLE_MAP,
-    HIGH_BLOCK,
-    SIMPLETOWN_DOORS,
-    SIMPLETOWN_WALL_ROWS,
-    Layout,
-    layout,
-)
+from .envs.drawing import FAILURE, FLOOR, GOAL, LABELS, START, STYLES, WALL
+from .envs.family import family_behaviour
 from .tasks import Task, parse_task
 
 if TYPE_CHECKING:
     from .evaluation import PolicyFn
-
-FLOOR = "#d9d9cf"  # the env's floor colour (0.8 0.8 0.75)
-WALL = "#555560"
-DOOR_CLOSED = "#8c5a2b"  # a wall that is open in a sibling maze: brown, hatched
-DOOR_OPEN = "#c07a30"
-BLOCK_HIGH = "#2e6b2e"  # 3 m: a wall to the agent
-BLOCK_LOW = "#9ed49e"  # 1 m: jumpable
-START = "#1f4fd1"
-GOAL = "#d62020"
-FAILURE = "#d62020"
-
-STYLES: dict[str, dict] = {
-    "wall": {"facecolor": WALL, "edgecolor": "none"},
-    "door-closed": {"facecolor": WALL, "edgecolor": DOOR_CLOSED, "hatch": "xxx", "lw": 1.0},
-    "door-open": {"facecolor": "none", "edgecolor": DOOR_OPEN, "linestyle": "--", "lw": 1.2},
-    "block-high": {"facecolor": BLOCK_HIGH, "edgecolor": "#1c431c", "hatch": "///", "lw": 0.5},
-    "block-low": {"facecolor": BLOCK_LOW, "edgecolor": "#5f9f5f", "lw": 0.5},
-}
-LABELS = {
-    "wall": "wall",
-    "door-closed": "closed door",
-    "door-open": "open door",
-    "block-high": "high block (3 m)",
-    "block-low": "low block (1 m, jumpable)",
-}
 
 
 @dataclass(frozen=True)
@@ -70,137 +39,13 @@ class Overlay:
     successes: np.ndarray | None = None
 
 
-# --- maze geometry -------------------------------------------------------------------------
-
-
-def cell_rectangles(mask: np.ndarray) -> list[tuple[int, int, int, int]]:
-    """Rectangles (first row, end row, first col, end col; ends exclusive) that cover the True
-    cells of ``mask`` exactly, without overlap: horizontal runs merged with the same run in
-    the rows below. A maze becomes tens of patches rather than hundreds, and a block reads
-    as one block rather than as stripes."""
-    rects, open_runs = [], {}  # (c0, c1) -> first row of the run's rectangle
-    mask = np.asarray(mask, dtype=bool)
-    for r, row in enumerate(mask):
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], row.astype(np.int8), [0]])))
-        runs = {(int(c0), int(c1)) for c0, c1 in zip(edges[::2], edges[1::2], strict=True)}
-        for run in set(open_runs) - runs:
-            rects.append((open_runs.pop(run), r, *run))
-        for run in runs - set(open_runs):
-            open_runs[run] = r
-    rects.extend((r0, len(mask), *run) for run, r0 in open_runs.items())
-    return sorted(rects)
-
-
-def door_mask(game: str, lay: Layout) -> np.ndarray:
-    """Cells that are doors in ``game``'s raw map, whatever their state in this maze: the
-    resolved layout only holds ``#`` or ``.`` there, so doors are found by comparing with
-    the map the mazes are resolved from."""
-    mask = np.zeros(lay.shape, dtype=bool)
-    if game == "amazeville":
-        mask = np.isin(np.array([list(row) for row in AMAZEVILLE_MAP]), list("abc"))
-    elif game == "simpletown" and lay.name != "BASE":
-        for row in SIMPLETOWN_WALL_ROWS:
-            for c0, c1 in SIMPLETOWN_DOORS:
-                mask[row, c0:c1] = True
-    return mask
-
-
-def game_cell_kinds(game: str, lay: Layout) -> dict[str, np.ndarray]:
-    """Boolean [rows, cols] masks of what each cell of a game maze is drawn as."""
-    grid = lay.array()
-    doors = door_mask(game, lay)
-    block = "block-high" if lay.block_height >= HIGH_BLOCK else "block-low"
-    return {
-        "wall": (grid == "#") & ~doors,
-        "door-closed": (grid == "#") & doors,
-        "door-open": (grid == ".") & doors,
-        block: grid == "G",
-    }
-
-
-def _draw_cells(ax: Axes, mask: np.ndarray, corner, size: float, kind: str) -> None:
-    """The cells of ``mask`` as rectangles of style ``kind``; ``corner(row, col)`` is a
-    cell's lower-left (x, y) in world coordinates (rows run down the map) and ``size`` its
-    side."""
-    for r0, r1, c0, c1 in cell_rectangles(mask):
-        x, y = corner(r1 - 1, c0)
-        rect = Rectangle((x, y), (c1 - c0) * size, (r1 - r0) * size, **STYLES[kind], zorder=1)
-        rect.set_gid(kind)
-        ax.add_patch(rect)
-
-
-def _draw_game_maze(ax: Axes, task: Task) -> None:
-    lay = layout(task.family, task.maze)
-    half = lay.cell / 2
-
-    def corner(r: int, c: int) -> tuple[float, float]:
-        x, y = lay.cell_centre(r, c)
-        return x - half, y - half
-
-    for kind, mask in game_cell_kinds(task.family, lay).items():
-        _draw_cells(ax, mask, corner, lay.cell, kind)
-    starts, goals = np.asarray(lay.starts), np.asarray(lay.goals)
-    if lay.segments:  # points are drawn uniformly along these segments
-        for pts, colour, gid in ((starts, START, "start-segment"), (goals, GOAL, "goal-segment")):
-            (line,) = ax.plot(pts[:, 0], pts[:, 1], color=colour, lw=3, alpha=0.8, zorder=3)
-            line.set_gid(gid)
-    else:
-        for pts, colour, marker, gid in (
-            (starts, START, "^", "starts"),
-            (goals, GOAL, "*", "goals"),
-        ):
-            (line,) = ax.plot(
-                pts[:, 0],
-                pts[:, 1],
-                ls="none",
-                marker=marker,
-                ms=9,
-                mfc=colour,
-                mec="white",
-                mew=0.8,
-                zorder=4,
-            )
-            line.set_gid(gid)
-    width, depth = lay.size
-    ax.set_xlim(0, width)
-    ax.set_ylim(0, depth)
-
-
-def _draw_robotics_maze(ax: Axes, task: Task) -> None:
-    """A gymnasium-robotics maze: its wall cells, in the env's own maze coordinates (starts
-    and goals are random free cells, so none are marked)."""
-    from .envs import make_env
-    from .envs.mazes import cell_to_xy, maze_array
-
-    env = make_env(task)
-    try:
-        grid = maze_array(env)
-        size = float(env.unwrapped.maze.maze_size_scaling)
-
-        def corner(r: int, c: int) -> tuple[float, float]:
-            x, y = cell_to_xy(env, np.array([r, c]))
-            return x - size / 2, y - size / 2
-
-        _draw_cells(ax, grid == 1, corner, size, "wall")
-        rows, cols = grid.shape
-        left, top = cell_to_xy(env, np.array([0, 0])) + [-size / 2, size / 2]
-        right, bottom = cell_to_xy(env, np.array([rows - 1, cols - 1])) + [size / 2, -size / 2]
-    finally:
-        env.close()
-    ax.set_xlim(left, right)
-    ax.set_ylim(bottom, top)
-
-
 def draw_maze(ax: Axes, task: str | Task) -> None:
     """Draw ``task``'s maze from above on ``ax`` in world coordinates: floor, walls, doors
     (closed hatched, open dashed), blocks (dark hatched = 3 m, light = 1 m), start and goal
     points (triangles / stars) or segments (lines). The variant changes nothing visible."""
     task = parse_task(task)
     ax.set_facecolor(FLOOR)
-    if task.env_family.game:
-        _draw_game_maze(ax, task)
-    else:
-        _draw_robotics_maze(ax, task)
+    family_behaviour(task).draw_maze(ax, task)
     ax.set_aspect("equal")
     ax.set_xticks([])
     ax.set_yticks([])

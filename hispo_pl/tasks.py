@@ -68,7 +68,10 @@ class Family:
     high_inputs: HighInputs = "observation"  # what the high policy sees by default (HIGH_INPUTS)
     expert: str = ""  # "module:Class" of the data-collecting expert (imported when needed)
     expert_reads_weights: bool = False  # the expert's policy comes from a weights file
-    game: bool = False  # a video-game maze: own env class and drawing, episodes end at the goal
+    # "module:Class" of its FamilyBehaviour (hispo_pl.envs.family): env registration and
+    # collection, episodes, reset options, drawing (imported when needed)
+    behaviour: str = ""
+    game: bool = False  # a video-game maze: its Gymnasium id carries no variant
     # HiSPO's pruning tolerance per subspace when the method config leaves it unset: a low
     # anchor carries over at a higher loss on the continuous-control mazes
     # (docs/studies/pruning.md); the game mazes' own is in _game_family
@@ -98,6 +101,7 @@ def _game_family(
         # loss moves little where the behaviour changes a lot: prune only at nearly equal loss
         pruning_eps={"high": 0.05, "low": 0.05},
         expert="hispo_pl.envs.videogame.expert:GameExpert",
+        behaviour="hispo_pl.envs.games:GameMazes",
         game=True,
     )
 
@@ -108,6 +112,7 @@ FAMILIES: dict[str, Family] = {
         low_inputs="goal",  # a point mass needs no proprioception: its low policy sees goal space
         high_inputs="goal",  # its observation is position and velocity: goal space says it all
         expert="hispo_pl.envs.experts:PointMazeExpert",
+        behaviour="hispo_pl.envs.robotics:RoboticsMazes",
         env_id="PointMaze_{}-v3",
         obs_dim=4,
         action_dim=2,
@@ -134,6 +139,7 @@ FAMILIES: dict[str, Family] = {
         },
         env_kwargs={"include_cfrc_ext_in_observation": False},
         expert="hispo_pl.envs.experts:AntMazeExpert",
+        behaviour="hispo_pl.envs.robotics:RoboticsMazes",
         expert_reads_weights=True,
         step_seconds=0.05,  # 5 MuJoCo steps of 0.01 s per action
     ),

@@ -13,7 +13,6 @@ import torch
 from hispo_pl.cli import main
 from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.data.datasets import episodes_to_arrays
-from hispo_pl.data.generation import collect_episode
 from hispo_pl.envs import agent_flipped, make_env
 from hispo_pl.envs.experts import (
     ANT_ACTION_SCALE,
@@ -25,6 +24,7 @@ from hispo_pl.envs.experts import (
     PointMazeExpert,
     ant_expert_weights_path,
 )
+from hispo_pl.envs.robotics import RoboticsMazes
 from hispo_pl.evaluation import RolloutEvaluator
 from hispo_pl.tasks import VARIANTS, parse_task, transform_action, transform_observation
 
@@ -162,6 +162,7 @@ def test_collection_cuts_an_episode_at_the_flip(tmp_path):
 
     env = make_env("antmaze-umaze", continuing_task=True, reset_target=True)
     rng = np.random.default_rng(0)
+    collect_episode = RoboticsMazes().collect_episode
     ep = collect_episode(env, TurnsOverAt(env, 12), rng, seed=0, noise=0.04, steps=50)
     assert len(ep["actions"]) == 11 and len(ep["observation"]) == 12 and bool(ep["flipped"])
     ball = make_env("pointmaze-umaze", continuing_task=True, reset_target=True)

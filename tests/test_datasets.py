@@ -19,6 +19,7 @@ from hispo_pl.data.datasets import (
     local_dataset_id,
 )
 from hispo_pl.data.generation import _goal_stats, generate_dataset
+from hispo_pl.envs.robotics import RoboticsMazes
 
 UMAZE_ID = "hispo/pointmaze-umaze-expert-v0"
 UMAZE_STEPS = 300
@@ -229,7 +230,7 @@ def test_existing_dataset_is_not_regenerated(tiny_umaze, monkeypatch):
     def boom(*args, **kwargs):
         raise AssertionError("collected again")
 
-    monkeypatch.setattr(generation, "collect_episode", boom)
+    monkeypatch.setattr(RoboticsMazes, "collect_episode", boom)
     assert generate_dataset("pointmaze-umaze", episodes=TINY_EPISODES, progress=False) == UMAZE_ID
     assert minari.list_local_datasets()[UMAZE_ID]["total_episodes"] == TINY_EPISODES
 
@@ -243,7 +244,7 @@ def test_other_settings_over_an_existing_dataset_need_overwrite(
     def boom(*args, **kwargs):
         raise AssertionError("collected again")
 
-    monkeypatch.setattr(generation, "collect_episode", boom)
+    monkeypatch.setattr(RoboticsMazes, "collect_episode", boom)
     kwargs = {"episodes": TINY_EPISODES, **asked}
     with pytest.raises(generation.DatasetSettingsError, match="--overwrite") as err:
         generate_dataset("pointmaze-umaze", progress=False, **kwargs)
@@ -283,7 +284,7 @@ def test_interrupted_generation_resumes_identically(monkeypatch, tmp_path):
 
     # interrupted after two episodes, then resumed
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "resumed"))
-    real = generation.collect_episode
+    real = RoboticsMazes.collect_episode
     calls = []
 
     class Interrupted(Exception):
@@ -292,10 +293,10 @@ def test_interrupted_generation_resumes_identically(monkeypatch, tmp_path):
     def dies_after_two(*args, **kwargs):
         if len(calls) == 2:
             raise Interrupted
-        calls.append(args[3])  # the episode's reset seed
+        calls.append(args[4])  # the episode's reset seed (after self)
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(generation, "collect_episode", dies_after_two)
+    monkeypatch.setattr(RoboticsMazes, "collect_episode", dies_after_two)
     with pytest.raises(Interrupted):
         generate_dataset("pointmaze-umaze", episodes=episodes, progress=False)
     assert not dataset_exists(ref_id)
@@ -306,10 +307,10 @@ def test_interrupted_generation_resumes_identically(monkeypatch, tmp_path):
     resumed_calls = []
 
     def counting(*args, **kwargs):
-        resumed_calls.append(args[3])
+        resumed_calls.append(args[4])
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(generation, "collect_episode", counting)
+    monkeypatch.setattr(RoboticsMazes, "collect_episode", counting)
     assert generate_dataset("pointmaze-umaze", episodes=episodes, progress=False) == ref_id
     assert resumed_calls == [2, 3]  # only the missing episodes are collected
     resumed = _arrays(ref_id)

@@ -10,7 +10,8 @@ from hispo_pl import evaluation
 from hispo_pl.envs import make_env
 from hispo_pl.envs.experts import PointMazeExpert
 from hispo_pl.envs.mazes import maze_array
-from hispo_pl.evaluation import RolloutEvaluator, RolloutResult, start_goal_cells
+from hispo_pl.envs.robotics import start_goal_cells
+from hispo_pl.evaluation import RolloutEvaluator, RolloutResult
 from hispo_pl.tasks import parse_task, transform_action
 
 

@@ -8,7 +8,7 @@ import pytest
 from hispo_pl.envs import make_env
 from hispo_pl.envs.experts import PointMazeExpert
 from hispo_pl.envs.mazes import bfs_next_cell, cell_to_xy, free_cells, maze_array, xy_to_cell
-from hispo_pl.evaluation import start_goal_cells
+from hispo_pl.envs.robotics import start_goal_cells
 
 
 def run_expert(env, expert, start, goal, noise=0.0, seed=0):

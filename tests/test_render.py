@@ -13,10 +13,10 @@ from matplotlib.patches import Rectangle
 from hispo_pl.cli import main
 from hispo_pl.commands import expand_render_tasks
 from hispo_pl.config import BackboneConfig
+from hispo_pl.envs.drawing import cell_rectangles
 from hispo_pl.envs.videogame.layouts import layout
 from hispo_pl.render import (
     Overlay,
-    cell_rectangles,
     dataset_paths,
     draw_paths,
     maze_figure,

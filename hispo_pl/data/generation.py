@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from ..envs import agent_flipped, make_env
-from ..envs.mazes import free_cells, maze_array
+from ..envs import make_env
+from ..envs.family import family_behaviour
 from ..errors import UserError
 from ..tasks import Task, parse_task
 from .datasets import (
@@ -57,72 +57,6 @@ def _goal_stats(goals: np.ndarray, reached: np.ndarray, limit: int) -> tuple[int
         elif s + limit <= n_steps:
             failed += 1
     return ok, failed
-
-
-def collect_episode(env, expert, rng: np.random.Generator, seed: int, noise: float, steps: int):
-    """One continuing episode of ``steps`` steps from a random start cell; new goal cells are
-    drawn by the env whenever the current one is reached. An episode in which the agent flips
-    over (:func:`~hispo_pl.envs.agent_flipped`, the check evaluation uses) is cut at that step:
-    its clean prefix is kept and ``flipped`` is set. Returns a dict of arrays."""
-
-    cells = free_cells(maze_array(env))
-    i, j = rng.choice(len(cells), size=2, replace=False)
-    obs, _ = env.reset(seed=seed, options={"reset_cell": cells[i], "goal_cell": cells[j]})
-    expert.reset()
-    keys = ("observation", "achieved_goal", "desired_goal")
-    record = {k: [obs[k]] for k in keys}
-    actions, rewards, success = [], [], []
-    low, high = env.action_space.low, env.action_space.high
-    flipped = False
-    for _ in range(steps):
-        action = expert.act(obs)
-        action = np.clip(action + noise * rng.standard_normal(action.shape), low, high)
-        goal_before = obs["desired_goal"]
-        obs, reward, _, _, info = env.step(action)
-        if agent_flipped(env):  # the transition into the flip is not kept
-            flipped = True
-            break
-        reached = bool(np.linalg.norm(obs["achieved_goal"] - goal_before) <= 0.45)
-        for k in keys:
-            record[k].append(obs[k])
-        actions.append(action)
-        rewards.append(reward)
-        success.append(reached)
-    return _episode_arrays(record, actions, rewards, success, flipped)
-
-
-def _episode_arrays(record: dict, actions, rewards, reached, flipped: bool) -> dict:
-    """One collected episode as the arrays staged to disk (observation keys, actions, rewards,
-    per-step goal reached, whether it was cut at a flip)."""
-    out = {k: np.asarray(v) for k, v in record.items()}
-    out["actions"] = np.asarray(actions, dtype=np.float32)
-    out["rewards"] = np.asarray(rewards, dtype=np.float64)
-    out["reached"] = np.asarray(reached, dtype=bool)
-    out["flipped"] = np.asarray(flipped)
-    return out
-
-
-def collect_game_episode(env, expert, rng: np.random.Generator, seed: int, steps: int):
-    """One video-game episode from a drawn start point to a drawn goal point, ending when the
-    goal is touched (the env terminates) or after ``steps`` steps. Same dict of arrays as
-    :func:`collect_episode`; ``reached`` marks the step that touched the goal."""
-    start, goal = env.unwrapped.layout.sample_start_goal(rng)
-    obs, _ = env.reset(seed=seed, options={"start": start, "goal": goal})
-    expert.reset(rng)
-    keys = ("observation", "achieved_goal", "desired_goal")
-    record = {k: [obs[k]] for k in keys}
-    actions, rewards, success = [], [], []
-    for _ in range(steps):
-        action = expert.act(obs)
-        obs, reward, terminated, truncated, info = env.step(action)
-        for k in keys:
-            record[k].append(obs[k])
-        actions.append(action)
-        rewards.append(reward)
-        success.append(bool(info["success"]))
-        if terminated or truncated:
-            break
-    return _episode_arrays(record, actions, rewards, success, flipped=False)
 
 
 def expert_class(name: str | Task) -> type:
@@ -226,8 +160,8 @@ def generate_dataset(
     elif problem != "missing":  # cut short by a kill while it was written: rebuild it
         shutil.rmtree(final)
     steps = task.defaults.max_episode_steps
-    game = task.env_family.game
-    env = make_env(name) if game else make_env(name, continuing_task=True, reset_target=True)
+    behaviour = family_behaviour(task)
+    env = behaviour.make_collection_env(parse_task(name))
     expert = make_expert(name, env, expert_weights)
     staging = dataset_path("") / ".staging" / f"{name}-seed{seed}-noise{noise}"
     staging.mkdir(parents=True, exist_ok=True)
@@ -237,11 +171,7 @@ def generate_dataset(
         if not path.exists():
             rng = np.random.default_rng([seed, k])
             ep_seed = seed * 1_000_003 + k
-            ep = (
-                collect_game_episode(env, expert, rng, ep_seed, steps)
-                if game
-                else collect_episode(env, expert, rng, ep_seed, noise, steps)
-            )
+            ep = behaviour.collect_episode(env, expert, rng, ep_seed, noise, steps)
             tmp = path.with_suffix(".tmp.npz")
             np.savez(tmp, **ep)
             tmp.replace(path)
@@ -253,7 +183,7 @@ def generate_dataset(
         flips += int(ep.get("flipped", False))
         n = len(ep["actions"])
         kept_steps += n
-        ended = bool(game and ep["reached"][-1])  # a game episode ends by touching its goal
+        ended = behaviour.episode_ended(ep)
         buffers.append(
             EpisodeBuffer(
                 id=k,
@@ -275,28 +205,7 @@ def generate_dataset(
         "episodes_cut_at_flip": flips,
         "steps": kept_steps,
     }
-    cut = (
-        f" {flips} of {episodes} episodes ended early because the agent flipped over: the "
-        f"clean prefix is kept, {kept_steps} of {episodes * steps} steps."
-        if flips
-        else ""
-    )
-    if game:
-        description = (
-            f"{episodes} episodes on {task.env_id}, each from a start point to a goal point of "
-            f"the layout, ending when the goal is touched or after {steps} steps; seed {seed}. "
-            f"Planner-generated, not human play (the paper's data was played by people): the "
-            f"expert '{expert.name}' ({expert.description}). Expert success: {ok}/{ok + failed}"
-            f" = {success:.4f}. Stats: {json.dumps(stats)}"
-        )
-    else:
-        description = (
-            f"{episodes} continuing episodes of {steps} steps on {task.env_id}, collected by the "
-            f"expert '{expert.name}' ({expert.description}) with Gaussian action noise std "
-            f"{noise:g}, seed {seed}; a new goal cell is drawn each time the goal is reached. "
-            f"Expert goal success: {ok}/{ok + failed} = {success:.4f} (a goal fails if not "
-            f"reached within {steps} steps).{cut} Stats: {json.dumps(stats)}"
-        )
+    description = behaviour.describe_dataset(task, expert, settings, stats)
     build = dataset_path("") / ".staging" / f"build-{name}"  # a killed build is redone
     shutil.rmtree(build, ignore_errors=True)
     with _minari_root(build):  # the dataset is written here, then moved into place whole

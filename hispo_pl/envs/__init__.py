@@ -7,31 +7,31 @@ import os
 import gymnasium as gym
 
 from ..tasks import FAMILIES, Task, parse_task
+from .family import family_behaviour
 from .wrappers import VariantWrapper
 
 _robotics_registered = False
+_registered: dict[str, Task] = {}  # Gymnasium id -> the task it was registered for
 
 
 def register_tasks() -> None:
     """Register every task with Gymnasium under :attr:`Task.gym_id`: each maze of PointMaze and
     AntMaze in each of its variants (``hispo_pl/AntMaze_Medium-IA-v5``) and each game maze
-    (``hispo_pl/AmazeVille_HOOO-v0``). Entry points are named by string, so registering
-    imports no simulator. Runs on ``import hispo_pl.envs``; a second call changes nothing."""
+    (``hispo_pl/AmazeVille_HOOO-v0``), with its family's entry point (:mod:`.family`). Entry
+    points are named by string, so registering imports no simulator. Runs on ``import
+    hispo_pl.envs``; a second call changes nothing."""
     for family, fam in FAMILIES.items():
+        behaviour = family_behaviour(fam)
         for maze, defaults in fam.mazes.items():
             for variant in fam.variants:
                 task = Task(family, maze, variant)
+                _registered[task.gym_id] = task
                 if task.gym_id in gym.registry:
                     continue
-                game = fam.game
                 gym.register(
                     id=task.gym_id,
-                    entry_point=(
-                        "hispo_pl.envs.videogame.env:GameNavEnv" if game else f"{__name__}:task_env"
-                    ),
-                    kwargs={"game": family, "maze": maze}
-                    if game
-                    else {"task": f"{family}-{maze}-{variant}"},
+                    entry_point=behaviour.entry_point,
+                    kwargs=behaviour.env_kwargs(task),
                     max_episode_steps=defaults.max_episode_steps,
                     disable_env_checker=True,
                 )
@@ -58,6 +58,12 @@ def task_env(task: str | Task, **kwargs) -> gym.Env:
     return VariantWrapper(env, task) if task.variant != "N" else env
 
 
+def env_task(env: gym.Env) -> Task:
+    """The task an env made by :func:`make_env` was registered for (its variant; the default
+    episode count)."""
+    return _registered[env.spec.id]
+
+
 def make_env(task: str | Task, *, continuing_task: bool = False, **kwargs) -> gym.Env:
     """``gym.make`` of ``task``'s registered id (its variant applied, its step limit set).
 
@@ -82,4 +88,4 @@ def agent_flipped(env: gym.Env) -> bool:
     return bool(1.0 - 2.0 * (qx * qx + qy * qy) < 0.0)
 
 
-__all__ = ["make_env", "register_tasks", "task_env", "agent_flipped", "VariantWrapper"]
+__all__ = ["env_task", "make_env", "register_tasks", "task_env", "agent_flipped", "VariantWrapper"]
