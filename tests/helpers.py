@@ -128,6 +128,28 @@ def perturb_newest(module: HiSPO, subspace: str, seed: int = 1, scale: float = 0
                 p.add_(scale * torch.randn(p.shape, generator=g))
 
 
+def grow_three_tasks(m: HiSPO, perturb) -> HiSPO:
+    """``m`` after three tasks: 3 high anchors, 2 low ones (the low extension of task 3 pruned),
+    3 stored weight rows; ``perturb(module, subspace, seed)`` moves each new anchor away."""
+    for name in ("high", "low"):
+        m.set_task_alpha(0, name, torch.ones(1))
+    m.freeze_all()
+    for name in ("high", "low"):
+        m.add_anchor(name)
+        perturb(m, name, 11)
+    m.set_task_alpha(1, "high", torch.tensor([0.4, 0.6]))
+    m.set_task_alpha(1, "low", torch.tensor([0.3, 0.7]))
+    m.freeze_all()
+    for name in ("high", "low"):
+        m.add_anchor(name)
+        perturb(m, name, 12)
+    m.set_task_alpha(2, "high", torch.tensor([0.2, 0.3, 0.5]))
+    m.prune_last_anchor("low")
+    m.set_task_alpha(2, "low", torch.tensor([0.5, 0.5]))
+    m.task_index = 2
+    return m
+
+
 def act_on(module: HiSPO, task: int | None, seed: int = 3) -> torch.Tensor:
     b = random_batch(7, seed)
     module.eval()

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 import torch
 import torch.nn.functional as F
-from helpers import HISPO_SIZES, act_on, quiet_trainer, random_batch, tiny_hispo
+from helpers import HISPO_SIZES, act_on, grow_three_tasks, quiet_trainer, random_batch, tiny_hispo
 from torch.utils.data import DataLoader
 
 from hispo_pl.metrics import module_bytes
@@ -306,24 +306,9 @@ def test_stored_bytes_with_four_anchors_are_below_hispos():
 
 def _three_task_module() -> HiLOW:
     """3 high anchors, 2 low anchors (the low extension of task 3 pruned), 3 stored tasks."""
-    m = _module(seed=5)
-    for name in SUBSPACES:
-        m.set_task_alpha(0, name, torch.ones(1))
-    m.freeze_all()
-    for name in SUBSPACES:
-        m.add_anchor(name)
-        _perturb_newest(m, name, seed=11, scale=1.0)
-    m.set_task_alpha(1, "high", torch.tensor([0.4, 0.6]))
-    m.set_task_alpha(1, "low", torch.tensor([0.3, 0.7]))
-    m.freeze_all()
-    for name in SUBSPACES:
-        m.add_anchor(name)
-        _perturb_newest(m, name, seed=12, scale=1.0)
-    m.set_task_alpha(2, "high", torch.tensor([0.2, 0.3, 0.5]))
-    m.prune_last_anchor("low")
-    m.set_task_alpha(2, "low", torch.tensor([0.5, 0.5]))
-    m.task_index = 2
-    return m
+    return grow_three_tasks(
+        _module(seed=5), lambda m, name, seed: _perturb_newest(m, name, seed, scale=1.0)
+    )
 
 
 def test_checkpoint_round_trip_restores_every_task(tmp_path):

@@ -5,7 +5,15 @@ from __future__ import annotations
 
 import pytest
 import torch
-from helpers import HISPO_SIZES, act_on, perturb_newest, quiet_trainer, random_batch, tiny_hispo
+from helpers import (
+    HISPO_SIZES,
+    act_on,
+    grow_three_tasks,
+    perturb_newest,
+    quiet_trainer,
+    random_batch,
+    tiny_hispo,
+)
 from torch.utils.data import DataLoader
 
 import hispo_pl.modules.hispo as hispo_mod
@@ -120,24 +128,7 @@ def test_grouped_forward_without_noise_equals_a_plain_forward():
 
 def _three_task_module() -> HiSPO:
     """3 high anchors, 2 low anchors (the low extension of task 3 pruned), 3 stored tasks."""
-    m = tiny_hispo(seed=5)
-    for name in SUBSPACES:
-        m.set_task_alpha(0, name, torch.ones(1))
-    m.freeze_all()
-    for name in SUBSPACES:
-        m.add_anchor(name)
-        perturb_newest(m, name, seed=11)
-    m.set_task_alpha(1, "high", torch.tensor([0.4, 0.6]))
-    m.set_task_alpha(1, "low", torch.tensor([0.3, 0.7]))
-    m.freeze_all()
-    for name in SUBSPACES:
-        m.add_anchor(name)
-        perturb_newest(m, name, seed=12)
-    m.set_task_alpha(2, "high", torch.tensor([0.2, 0.3, 0.5]))
-    m.prune_last_anchor("low")
-    m.set_task_alpha(2, "low", torch.tensor([0.5, 0.5]))
-    m.task_index = 2
-    return m
+    return grow_three_tasks(tiny_hispo(seed=5), lambda m, name, seed: perturb_newest(m, name, seed))
 
 
 def _saved_by_trainer(module: HiSPO, path) -> None:
