@@ -10,7 +10,7 @@ import torch
 from tqdm.auto import tqdm
 
 from .data.sampler import position_velocity
-from .envs import agent_flipped, env_task, make_env
+from .envs import agent_flipped, make_env
 from .envs.family import family_behaviour
 from .nn import eval_mode
 from .tasks import Task, parse_task
@@ -36,10 +36,10 @@ class RolloutResult:
         return float(self.flips.mean())
 
 
-def reset_options(env, episodes: int, seed: int) -> list[dict]:
-    """Seeded start and goal of each evaluation episode as ``env.reset`` options, drawn as
-    the family of ``env``'s task draws them."""
-    return family_behaviour(env_task(env)).reset_options(env, episodes, seed)
+def reset_options(task: Task, env, episodes: int, seed: int) -> list[dict]:
+    """Seeded start and goal of each evaluation episode of ``task`` as ``env.reset`` options,
+    drawn as ``task``'s family draws them."""
+    return family_behaviour(task).reset_options(env, episodes, seed)
 
 
 class RolloutEvaluator:
@@ -68,7 +68,7 @@ class RolloutEvaluator:
         ]
         self.max_steps = steps
         self.step_seconds = self.task.env_family.step_seconds
-        self.options = reset_options(self.envs[0], episodes, seed)
+        self.options = reset_options(self.task, self.envs[0], episodes, seed)
 
     def run(self, policy: PolicyFn, progress: bool = False, record: bool = False) -> RolloutResult:
         """Success, lengths and flips of every episode; ``record`` also keeps each episode's

@@ -9,7 +9,7 @@ import pytest
 from hispo_pl.envs import make_env
 from hispo_pl.envs.family import FamilyBehaviour, family_behaviour
 from hispo_pl.evaluation import reset_options
-from hispo_pl.tasks import FAMILIES
+from hispo_pl.tasks import FAMILIES, parse_task
 
 
 @pytest.mark.parametrize("family", FAMILIES)
@@ -41,7 +41,7 @@ def test_each_family_resolves_to_a_behaviour(family):
 def test_reset_options_are_unchanged_for_a_fixed_seed(task, expected):
     env = make_env(task)
     try:
-        options = reset_options(env, 3, seed=0)
+        options = reset_options(parse_task(task), env, 3, seed=0)
     finally:
         env.close()
     assert [{k: np.asarray(v).tolist() for k, v in o.items()} for o in options] == expected

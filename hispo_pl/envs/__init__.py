@@ -11,7 +11,6 @@ from .family import family_behaviour
 from .wrappers import VariantWrapper
 
 _robotics_registered = False
-_registered: dict[str, Task] = {}  # Gymnasium id -> the task it was registered for
 
 
 def register_tasks() -> None:
@@ -25,7 +24,6 @@ def register_tasks() -> None:
         for maze, defaults in fam.mazes.items():
             for variant in fam.variants:
                 task = Task(family, maze, variant)
-                _registered[task.gym_id] = task
                 if task.gym_id in gym.registry:
                     continue
                 gym.register(
@@ -58,12 +56,6 @@ def task_env(task: str | Task, **kwargs) -> gym.Env:
     return VariantWrapper(env, task) if task.variant != "N" else env
 
 
-def env_task(env: gym.Env) -> Task:
-    """The task an env made by :func:`make_env` was registered for (its variant; the default
-    episode count)."""
-    return _registered[env.spec.id]
-
-
 def make_env(task: str | Task, *, continuing_task: bool = False, **kwargs) -> gym.Env:
     """``gym.make`` of ``task``'s registered id (its variant applied, its step limit set).
 
@@ -88,4 +80,4 @@ def agent_flipped(env: gym.Env) -> bool:
     return bool(1.0 - 2.0 * (qx * qx + qy * qy) < 0.0)
 
 
-__all__ = ["env_task", "make_env", "register_tasks", "task_env", "agent_flipped", "VariantWrapper"]
+__all__ = ["make_env", "register_tasks", "task_env", "agent_flipped", "VariantWrapper"]
