@@ -311,6 +311,35 @@ def test_export_copies_small_files_and_the_report_rebuilds_with_decisions(tmp_pa
     assert "zero-shot" not in md and md.count("| hispo |") == 4  # 2 seeds x (first, prune)
 
 
+def test_critic_decisions_go_to_their_own_table():
+    critic = {
+        "task": 1,
+        "subspace": "policy",
+        "decision": "prune",
+        "rule": "critic",
+        "eps": 0.1,
+        "w_prev": 0.5,
+        "w_curr": 0.52,
+        "l_prev": 0.3,
+        "l_curr": 0.2,
+        "q_action_std": 0.01,
+        "q_state_std": 0.2,
+        "action_dependence": 0.05,
+        "anchors": 1,
+    }
+    loss = {"task": 1, "subspace": "policy", "decision": "keep", "eps": 0.1, "l_prev": 0.3}
+    records = [
+        bm.RunRecord("csp", 0, {}, decisions=[critic]),
+        bm.RunRecord("cspo", 0, {}, decisions=[{**loss, "l_curr": 0.2, "anchors": 2}]),
+    ]
+    md = bm.critic_markdown(records, "pointmaze-1")
+    row = "| csp | 0 | 2 | 0.5000 | 0.5200 | 0.1 | 1.500 | 0.0100 | 0.2000 | 0.050 | prune | 1 |"
+    assert md.startswith("# Critic decisions: pointmaze-1") and row in md
+    assert "| cspo |" not in md  # loss rules stay in decisions.md
+    assert "| csp |" not in bm.decisions_markdown(records)
+    assert bm.critic_markdown(records[1:]) == ""
+
+
 def test_report_without_matplotlib_writes_tables(tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "matplotlib.figure", None)  # import fails
     rows, _ = bm.aggregate(_records())

@@ -62,7 +62,14 @@ from .report import (
     unfinished_runs,
     write_report,
 )
-from .tables import SCALED, decisions_markdown, runtime_csv, table_csv, table_markdown
+from .tables import (
+    SCALED,
+    critic_markdown,
+    decisions_markdown,
+    runtime_csv,
+    table_csv,
+    table_markdown,
+)
 
 __all__ = [
     "EMBED_BEGIN",
@@ -82,6 +89,7 @@ __all__ = [
     "configured_max_steps",
     "configured_value",
     "datasets_needed",
+    "critic_markdown",
     "decisions_markdown",
     "embed_reports",
     "execute_run",

@@ -13,7 +13,7 @@ from ..io import atomic_write_text
 from ..rundir import RunDir
 from .plan import PLAN_FILE, RUNS_DIR
 from .records import MethodRow, RunRecord, aggregate, load_records, results_matrix
-from .tables import decisions_markdown, runtime_csv, table_csv, table_markdown
+from .tables import critic_markdown, decisions_markdown, runtime_csv, table_csv, table_markdown
 
 
 def plot_perf_vs_memory(rows: Sequence[MethodRow], path: Path, stream: str = "") -> bool:
@@ -105,8 +105,10 @@ def unfinished_markdown(runs: Sequence[tuple[str, int, str]]) -> str:
 
 
 def write_report(out: Path, stream: str | None = None) -> list[Path]:
-    """Rebuild ``table.md``, ``table.csv``, ``runtime.csv`` and ``perf_vs_memory.png`` in
-    ``out`` from every finished run under ``out/runs``. Returns the files written.
+    """Rebuild ``table.md``, ``table.csv``, ``runtime.csv``, ``perf_vs_memory.png``, the
+    success heatmaps and, where runs made decisions, ``decisions.md`` (loss rules) and
+    ``critic.md`` (CSP's critic) in ``out`` from every finished run under ``out/runs``.
+    Returns the files written.
 
     Raises:
         FileNotFoundError: no finished run under ``out/runs``.
@@ -130,10 +132,13 @@ def write_report(out: Path, stream: str | None = None) -> list[Path]:
     ):
         atomic_write_text(out / name, text)
         written.append(out / name)
-    decisions = decisions_markdown(records, stream)
-    if decisions:
-        (out / "decisions.md").write_text(decisions)
-        written.append(out / "decisions.md")
+    for name, text in (
+        ("decisions.md", decisions_markdown(records, stream)),
+        ("critic.md", critic_markdown(records, stream)),
+    ):
+        if text:
+            atomic_write_text(out / name, text)
+            written.append(out / name)
     if plot_perf_vs_memory(rows, out / "perf_vs_memory.png", stream):
         written.append(out / "perf_vs_memory.png")
         written += plot_success_matrices(records, out)

@@ -99,8 +99,49 @@ def decisions_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
     legend = (
         "\nLosses: squared error of the deterministic prediction on the task's held-out "
         "episodes (train: on its training episodes). The rule prunes iff L_prev / L_curr ≤ "
-        "1 + ε. Convergence: relative fall of L_curr over the last 20 % of the task's steps. "
-        "CSP's critic decisions (W, not losses) are in its decisions.jsonl (docs/csp.md).\n"
+        "1 + ε. Convergence: relative fall of L_curr over the last 20 % of the task's steps."
+    )
+    if any(d.get("rule") == "critic" for r in records for d in r.decisions):
+        legend += " CSP decides by its critic: its decisions are in critic.md."
+    legend += "\n"
+    return "\n".join(lines) + "\n" + legend
+
+
+def _value(value: float | None, digits: int = 4) -> str:
+    return "" if value is None else f"{value:.{digits}f}"
+
+
+def critic_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
+    """CSP's decisions: the critic's values of the two points its rule compared, the imitation
+    losses of the same points (what CSPO's rule would have compared) and how much the learned
+    Q depends on the action (docs/csp.md); empty without critic decisions."""
+    lines = [
+        f"# Critic decisions{': ' + stream if stream else ''}\n",
+        "| method | seed | task | W_prev | W_curr | ε | L_prev / L_curr | Q std over actions | "
+        "Q std over states | action dependence | decision | anchors |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|",
+    ]
+    for r in records:
+        for d in r.decisions:
+            if d.get("rule") != "critic":
+                continue
+            ratio = d["l_prev"] / d["l_curr"] if d.get("l_prev") is not None else None
+            lines.append(
+                f"| {r.method} | {r.seed} | {d['task'] + 1} | {_value(d.get('w_prev'))} | "
+                f"{_value(d.get('w_curr'))} | {d.get('eps', '')} | {_value(ratio, 3)} | "
+                f"{_value(d.get('q_action_std'))} | {_value(d.get('q_state_std'))} | "
+                f"{_value(d.get('action_dependence'), 3)} | {d['decision']} | {d['anchors']} |"
+            )
+    if len(lines) == 3:
+        return ""
+    legend = (
+        "\nW: the critic's value E_s[Q(s, g, π_α(s, g), α)] of the best point of the old "
+        "(W_prev) and of the grown subspace (W_curr) on the task's held-out episodes; the rule "
+        "keeps the new anchor iff W_curr > W_prev + ε·|W_prev|. L_prev / L_curr: the imitation "
+        "losses of the same two points (read out, not decided on). Q std over actions: the "
+        "spread of Q over the data's, the policy's and uniform actions at a state, averaged "
+        "over states; over states: the spread of Q(s, g, a_data); action dependence: their "
+        "ratio (near 0: the critic values states, not actions).\n"
     )
     return "\n".join(lines) + "\n" + legend
 
