@@ -149,7 +149,13 @@ def _ln_backward(dz: Tensor, a: Tensor, mu: Tensor, rstd: Tensor, g: Tensor, e: 
 
 
 def _linear_backward(da: Tensor, inp: Tensor) -> tuple[Tensor, Tensor]:
-    """Weight and bias gradients of ``a = inp @ W.T + b`` (2-D)."""
+    """Weight and bias gradients of ``a = inp @ W.T + b`` (2-D).
+
+    A GEMM whose result has few columns is several times slower than its transpose (a
+    network's first layer has few inputs), so the product is taken with the smaller side
+    first."""
+    if inp.shape[1] < da.shape[1]:
+        return inp.t().mm(da).t().contiguous(), da.sum(0)
     return da.t().mm(inp), da.sum(0)
 
 
