@@ -24,16 +24,20 @@ from .search import DirichletEvaluation, SearchResult
 
 class AnchorExtension(L.Callback):
     """At the start of every task after the first, add one trainable anchor to each subspace
-    (older anchors frozen) before the optimiser is built; stored weights get a 0 appended."""
+    (older anchors frozen) before the optimiser is built; stored weights get a 0 appended.
+    A module whose ``anchor_init`` is unset starts the anchor as the task family says
+    (:attr:`~hispo_pl.tasks.Family.anchor_init`)."""
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         module = require_subspace_policy(pl_module, type(self).__name__)
         if stage != "fit" or module.task_index == 0:
             return
+        task = getattr(getattr(trainer, "datamodule", None), "task", None)
+        init = task.env_family.anchor_init if task is not None else "mean"
         for name in module.subspace_names:
             if not module.transferred(name) and not module.grown(name):
-                module.add_anchor(name)  # (transferred: ZeroShotTransfer chose its weights)
+                module.add_anchor(name, init)  # (transferred: ZeroShotTransfer chose its weights)
 
 
 def check_task_end_order(callbacks: list[L.Callback], pruning: L.Callback, search_type: type):

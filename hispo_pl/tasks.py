@@ -76,6 +76,10 @@ class Family:
     # anchor carries over at a higher loss on the continuous-control mazes
     # (docs/studies/pruning.md); the game mazes' own is in _game_family
     pruning_eps: dict[str, float] = field(default_factory=lambda: {"high": 0.1, "low": 0.6})
+    # how a new anchor starts when the method config leaves ``anchor_init`` unset: from the
+    # mean of the others (a new task builds on the old ones), or ``random`` (the game mazes,
+    # where starting from an earlier maze's anchors costs the new task, docs/studies/new-anchor.md)
+    anchor_init: Literal["mean", "random"] = "mean"
 
 
 def _game_family(
@@ -100,6 +104,7 @@ def _game_family(
         # a closed door or a raised block changes what to do in a few states only, so the mean
         # loss moves little where the behaviour changes a lot: prune only at nearly equal loss
         pruning_eps={"high": 0.05, "low": 0.05},
+        anchor_init="random",
         expert="hispo_pl.envs.videogame.expert:GameExpert",
         behaviour="hispo_pl.envs.games:GameMazes",
         game=True,

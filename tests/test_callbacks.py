@@ -5,12 +5,13 @@ stream evaluation row."""
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import lightning as L
 import numpy as np
 import pytest
 import torch
-from helpers import quiet_trainer
+from helpers import quiet_trainer, tiny_hispo
 from lightning.pytorch.loggers import Logger
 
 import hispo_pl.callbacks.subspace as subspace_callbacks
@@ -25,6 +26,7 @@ from hispo_pl.config import BackboneConfig
 from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.modules.hbc import HBC
 from hispo_pl.modules.hispo import SUBSPACES, HiSPO
+from hispo_pl.tasks import parse_task
 
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-IA[3]", "pointmaze-umaze-PO[3]"]
 SIZES = {"obs_dim": 4, "action_dim": 2, "backbone": BackboneConfig(high_hidden=8, low_hidden=16)}
@@ -180,6 +182,25 @@ def test_extension_trains_only_the_newest_anchor(first_task, tmp_path):
         assert torch.equal(after[k], v), k  # anchor 0 frozen
     moved = [k for k in after if k.startswith("policies") and k.endswith(".1")]
     assert any(not torch.equal(after[k], after[k[:-1] + "0"]) for k in moved)
+
+
+@pytest.mark.parametrize(
+    ("task", "anchor_init", "starts_at_mean"),
+    [
+        ("pointmaze-umaze-N", None, True),  # the family's: mean
+        ("amazeville-HXOO", None, False),  # the game mazes': random
+        ("amazeville-HXOO", "mean", True),  # the method config's wins
+    ],
+)
+def test_anchor_extension_starts_the_anchor_as_the_family_says(task, anchor_init, starts_at_mean):
+    module = tiny_hispo(anchor_init=anchor_init)
+    module.task_index = 1
+    trainer = SimpleNamespace(datamodule=SimpleNamespace(task=parse_task(task)))
+    AnchorExtension().setup(trainer, module, "fit")
+    for name in SUBSPACES:
+        net = module._nets(name)[0]
+        first, new = net.head.weights[0], net.head.weights[1]
+        assert torch.equal(first, new) is starts_at_mean  # one old anchor: its mean is itself
 
 
 def test_anchor_extension_adds_once_per_task(first_task, tmp_path):

@@ -35,7 +35,7 @@ class SubspacePolicy(Protocol):
 
     def n_anchors(self, subspace: str) -> int: ...
     def task_alphas(self, subspace: str) -> Tensor: ...
-    def add_anchor(self, subspace: str) -> None: ...
+    def add_anchor(self, subspace: str, default_init: AnchorInit = "mean") -> None: ...
     def prune_last_anchor(self, subspace: str) -> None: ...
     def current_alpha(self, subspace: str) -> Tensor: ...
     def score_alphas(self, subspace: str, alphas: Tensor, batch: dict[str, Tensor]) -> Tensor: ...
@@ -74,7 +74,9 @@ class HiSPO(GoalConditionedBC):
             hierarchical only).
         optim: Adam's learning rate and schedule, restarted each task.
         anchor_init: a new anchor starts as the ``mean`` of the others, ``random``, or a
-            copy of the ``first``.
+            copy of the ``first``; ``None``: the task family's choice
+            (:attr:`~hispo_pl.tasks.Family.anchor_init`, which :class:`~callbacks.
+            AnchorExtension` passes; ``mean`` outside a stream).
         cosine_weight: weight λ of the anchors' squared-cosine regulariser (0: off).
         alpha_noise: std of the noise on the scores while training (0.1 in the paper).
         alpha_groups: anchor weights drawn per step: the batch is split into this many
@@ -102,7 +104,7 @@ class HiSPO(GoalConditionedBC):
         goal_dim: int = 2,
         backbone: BackboneConfig = BackboneConfig(),
         optim: OptimConfig = OptimConfig(),
-        anchor_init: AnchorInit = "mean",
+        anchor_init: AnchorInit | None = None,
         cosine_weight: float = 0.0,
         alpha_noise: float = 0.1,
         alpha_groups: int = 1,
@@ -144,11 +146,13 @@ class HiSPO(GoalConditionedBC):
     def _set_task_alphas(self, subspace: str, value: Tensor) -> None:
         setattr(self, f"task_alpha_{subspace}", value)
 
-    def add_anchor(self, subspace: str) -> None:
+    def add_anchor(self, subspace: str, default_init: AnchorInit = "mean") -> None:
         """Grow a subspace by one trainable anchor (older ones frozen), reset its scores and
-        give every stored task a zero weight on the new anchor."""
+        give every stored task a zero weight on the new anchor. The anchor starts as
+        ``anchor_init`` says, or as ``default_init`` where that is unset."""
+        init = self.hparams.anchor_init or default_init
         for net in self._nets(subspace):
-            net.add_anchor(self.hparams.anchor_init)
+            net.add_anchor(init)
         k = self.n_anchors(subspace)
         scores = torch.zeros(k, device=self.scores[subspace].device)
         scores[-1] = self.hparams.new_anchor_score
