@@ -73,7 +73,7 @@ class DirichletEvaluation(L.Callback):
         n_candidates: Dirichlet draws per subspace.
         n_batches: batches of the current task the survivors are scored on.
         survivors: candidates kept after the probe; ``None`` scores every candidate on every
-            batch (exhaustive, about 10x slower with the defaults).
+            batch (exhaustive: every candidate costs what a survivor does).
         probe_samples: samples (from the first batch) every candidate is ranked on.
         loss: ``mse`` of the deterministic prediction (positive), or ``nll``.
         precision: ``32``, ``bf16`` (autocast; several times faster on CPUs with bf16 units),
