@@ -55,14 +55,19 @@ def duration(seconds: float) -> str:
 
 
 def decision_parts(decisions: list[dict]) -> list[str]:
-    """``low prune (1.05 vs 1.10)`` for each kept or pruned subspace: the ratio the rule
-    compared, ``L_prev / L_curr``, against ``1 + eps``."""
+    """``low prune (1.05 vs 1.10)`` for each kept or pruned subspace: the ratio the loss rule
+    compared, ``L_prev / L_curr``, against ``1 + eps``; for a critic's decision (CSP)
+    ``policy keep (W 0.52 vs 0.47)``: ``W_curr`` against the bar ``W_prev + eps·|W_prev|``."""
     parts = []
     for d in decisions:
-        if d.get("decision") not in ("keep", "prune") or not d.get("l_curr"):
+        if d.get("decision") not in ("keep", "prune"):
             continue
-        ratio = d["l_prev"] / d["l_curr"]
-        parts.append(f"{d['subspace']} {d['decision']} ({ratio:.2f} vs {1 + d['eps']:.2f})")
+        if d.get("rule") == "critic" and d.get("w_prev") is not None:
+            bar = d["w_prev"] + d["eps"] * abs(d["w_prev"])
+            parts.append(f"{d['subspace']} {d['decision']} (W {d['w_curr']:.3f} vs {bar:.3f})")
+        elif d.get("l_curr") and d.get("l_prev") is not None:
+            ratio = d["l_prev"] / d["l_curr"]
+            parts.append(f"{d['subspace']} {d['decision']} ({ratio:.2f} vs {1 + d['eps']:.2f})")
     return parts
 
 
@@ -152,8 +157,14 @@ def print_stream_results(results: dict) -> None:
     if results.get("anchors"):
         print(f"[hispo-pl] anchors per subspace: {results['anchors']}")
     run_dir = RunDir(results["run_dir"])
-    for line in decision_lines(run_dir.read_decisions()):
-        print(f"[hispo-pl] {line}  (L_prev / L_curr vs 1 + eps)")
+    decisions = run_dir.read_decisions()
+    legend = (
+        "W_curr vs W_prev + eps |W_prev|"
+        if any(d.get("rule") == "critic" for d in decisions)
+        else "L_prev / L_curr vs 1 + eps"
+    )
+    for line in decision_lines(decisions):
+        print(f"[hispo-pl] {line}  ({legend})")
     print(f"[hispo-pl] wall time per task (s): {[round(t) for t in results['wall_time_s']]}")
     print(f"[hispo-pl] results: {run_dir.results_file}")
     if any(Path(results["run_dir"]).glob("events.out.tfevents.*")):
