@@ -62,8 +62,8 @@ def table_csv(rows: Sequence[MethodRow]) -> str:
     return buf.getvalue()
 
 
-def _loss(value: float | None) -> str:
-    return "" if value is None else f"{value:.4f}"
+def _value(value: float | None, digits: int = 4) -> str:
+    return "" if value is None else f"{value:.{digits}f}"
 
 
 def decisions_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
@@ -89,7 +89,7 @@ def decisions_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
             conv = d.get("improvement")
             lines.append(
                 f"| {r.method} | {r.seed} | {d['task'] + 1} | {d['subspace']} | "
-                f"{_loss(d.get('l_prev'))} | {_loss(d['l_curr'])} | "
+                f"{_value(d.get('l_prev'))} | {_value(d['l_curr'])} | "
                 f"{'' if ratio is None else f'{ratio:.3f}'} | {d.get('eps', '')} | "
                 f"{'' if train is None else f'{train:.3f}'} | "
                 f"{'' if conv is None else f'{conv:+.1%}'} | {d['decision']} | {d['anchors']} |"
@@ -105,10 +105,6 @@ def decisions_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
         legend += " CSP decides by its critic: its decisions are in critic.md."
     legend += "\n"
     return "\n".join(lines) + "\n" + legend
-
-
-def _value(value: float | None, digits: int = 4) -> str:
-    return "" if value is None else f"{value:.{digits}f}"
 
 
 def critic_markdown(records: Sequence[RunRecord], stream: str = "") -> str:

@@ -161,7 +161,7 @@ def generate_dataset(
         shutil.rmtree(final)
     steps = task.defaults.max_episode_steps
     behaviour = family_behaviour(task)
-    env = behaviour.make_collection_env(parse_task(name))
+    env = behaviour.make_collection_env(task)
     expert = make_expert(name, env, expert_weights)
     staging = dataset_path("") / ".staging" / f"{name}-seed{seed}-noise{noise}"
     staging.mkdir(parents=True, exist_ok=True)
