@@ -306,3 +306,38 @@ def test_cosine_penalty_values():
     with torch.no_grad():
         lin.weights[1].copy_(-lin.weights[0])
     assert cosine_similarity_penalty(lin).item() == pytest.approx(1.0, abs=1e-6)
+
+
+def test_training_mix_follows_changes_to_frozen_anchors():
+    """The frozen anchors' rows are kept between steps; writing to a frozen anchor, or
+    replacing the anchors, must show in the next training mix."""
+    torch.manual_seed(0)
+    net = SubspaceResidualMLP(4, 8, 2, n_anchors=1)
+    net.add_anchor("random")
+    net.add_anchor("random")
+    alpha = torch.tensor([0.2, 0.3, 0.5], requires_grad=True)
+
+    def mixed_matches_layers() -> bool:
+        mixed = net._mixed_parameters(alpha)
+        plain = [t for layer in net._layers() for t in layer.mixed(alpha.detach())]
+        return all(torch.allclose(a, b, atol=1e-6) for a, b in zip(mixed, plain, strict=True))
+
+    assert mixed_matches_layers()
+    with torch.no_grad():
+        net.inp_linear.weights[0].add_(1.0)  # an in-place write to a frozen anchor
+    assert mixed_matches_layers()
+    net.remove_last_anchor()
+    net.add_anchor("random")  # a new newest anchor, the older ones the same objects
+    assert mixed_matches_layers()
+    net.set_n_anchors(2)
+    net.add_anchor("random")
+    with torch.no_grad():
+        net.head.biases[1].fill_(3.0)
+    assert mixed_matches_layers()
+    net.double()  # a cast gives the anchors new storage
+    alpha = alpha.detach().double().requires_grad_()
+    assert mixed_matches_layers()
+    loss = sum(t.sum() for t in net._mixed_parameters(alpha))
+    loss.backward()
+    assert all(p.grad is None for p in net.parameters() if not p.requires_grad)
+    assert alpha.grad is not None and net.head.weights[-1].grad is not None

@@ -213,5 +213,42 @@ class _ResidualMLPFunction(torch.autograd.Function):
         return (dx, None, None, None, None, *grads)
 
 
+def mix_newest(alpha: Tensor, frozen: Tensor, newest: Sequence[Tensor]) -> list[Tensor]:
+    """``alpha[:-1] @ frozen + alpha[-1] · newest`` split back into ``newest``'s tensors, as
+    one autograd node: a subspace's point while only its newest anchor trains.
+
+    ``alpha`` [K]; ``frozen`` [K - 1, D]: the older anchors' parameters as rows (no
+    gradient); ``newest``: the newest anchor's tensors (D values in all, in the rows'
+    order). Gradients go to ``alpha`` and ``newest``."""
+    shapes = tuple(p.shape for p in newest)
+    return list(_MixNewestFunction.apply(alpha, frozen, shapes, *newest))
+
+
+class _MixNewestFunction(torch.autograd.Function):
+    """Forward and backward of :func:`mix_newest`: one concatenation each way, one product
+    with the frozen rows each way, and no per-tensor graph nodes."""
+
+    @staticmethod
+    def forward(ctx, alpha, frozen, shapes, *newest):
+        flat = torch.cat([p.reshape(-1) for p in newest])
+        mixed = torch.addcmul(alpha[:-1] @ frozen, alpha[-1:], flat)
+        ctx.save_for_backward(alpha, frozen, flat)
+        ctx.shapes = shapes
+        sizes = [math.prod(shape) for shape in shapes]
+        return tuple(
+            part.view(shape) for part, shape in zip(mixed.split(sizes), shapes, strict=True)
+        )
+
+    @staticmethod
+    def backward(ctx, *grads):
+        alpha, frozen, flat = ctx.saved_tensors
+        g = torch.cat([grad.reshape(-1) for grad in grads])
+        d_alpha = torch.cat([frozen.mv(g), flat.dot(g).reshape(1)])
+        sizes = [math.prod(shape) for shape in ctx.shapes]
+        d_newest = g.mul_(alpha[-1]).split(sizes)
+        views = (part.view(shape) for part, shape in zip(d_newest, ctx.shapes, strict=True))
+        return (d_alpha, None, None, *views)
+
+
 def _flat(m: Tensor | None) -> Tensor | None:
     return None if m is None else m.reshape(-1, m.shape[-1])

@@ -277,6 +277,7 @@ class SubspaceResidualMLP(nn.Module):
         self.drop_inp = FastDropout(dropout)
         self.drop_block = FastDropout(dropout)
         self.drop_out = FastDropout(dropout)
+        self._frozen_cache: tuple[list[Tensor], list[int], Tensor] | None = None
 
     def forward(self, x: Tensor, alpha: Tensor) -> Tensor:
         """alpha [K]: x [B, in] → [B, out]. alpha [M, K]: x [B, in] or [M, B, in] → [M, B, out].
@@ -313,18 +314,55 @@ class SubspaceResidualMLP(nn.Module):
         While the weights train (``alpha`` requires grad, every anchor mixed) and all layers
         are full subspace layers, the whole network is mixed in one product: each anchor's
         parameters side by side in one row, ``alpha @ rows``, split back into tensors (a few
-        ops instead of a few per layer). Otherwise each layer mixes its own (which also
-        leaves out trailing zero-weighted anchors, see :meth:`SubspaceLayer._used`)."""
+        ops instead of a few per layer); while only the newest anchor trains, the older rows
+        are kept between steps (:meth:`_frozen_rows`, :func:`~hispo_pl.nn.fast.mix_newest`);
+        with one anchor, its parameters are the point. Otherwise each layer mixes its own
+        (which also leaves out trailing zero-weighted anchors, see
+        :meth:`SubspaceLayer._used`)."""
         layers = self._layers()
         if not alpha.requires_grad or not all(layer.mixes_as_rows for layer in layers):
             return [t for layer in layers for t in layer.mixed(alpha)]
         check_alpha(alpha, self.n_anchors)
         lists = [plist for layer in layers for plist in layer._lists()]
-        rows = torch.cat([plist[k].reshape(-1) for k in range(len(alpha)) for plist in lists])
-        mixed = alpha @ rows.view(len(alpha), -1)
+        k = len(alpha)
+        if k == 1:  # a weight over one anchor is exactly 1 (and has no free direction)
+            return [plist[0] for plist in lists]
+        frozen = self._frozen_rows(lists)
+        if frozen is not None:  # the usual layout of a task: only the newest anchor trains
+            return fast.mix_newest(alpha, frozen, [plist[k - 1] for plist in lists])
+        rows = torch.cat([plist[i].reshape(-1) for i in range(k) for plist in lists])
+        mixed = alpha @ rows.view(k, -1)
         shapes = [plist[0].shape for plist in lists]
         parts = mixed.split([math.prod(shape) for shape in shapes])
         return [part.view(shape) for part, shape in zip(parts, shapes, strict=True)]
+
+    def _frozen_rows(self, lists: list[nn.ParameterList]) -> Tensor | None:
+        """The older anchors' parameters as rows [K - 1, D], kept between steps, when every
+        older anchor is frozen and the newest trains (else ``None``).
+
+        Copying every anchor into one matrix each step, and back-propagating a gradient
+        into all of it, costs a network's parameters K times over; frozen anchors do not
+        change while a task trains, so their rows are built once and rebuilt only when one
+        of them is replaced or written to (its tensor or its version counter changes)."""
+        anchors = [tuple(plist._parameters.values()) for plist in lists]  # no per-item lookup
+        older = [p for i in range(len(anchors[0]) - 1) for p in (a[i] for a in anchors)]
+        if any(p.requires_grad for p in older) or not all(a[-1].requires_grad for a in anchors):
+            return None
+        cached = self._frozen_cache
+        if cached is not None and len(cached[0]) == len(older):
+            params, versions, rows = cached
+            if all(
+                p is q and p._version == v for p, q, v in zip(older, params, versions, strict=True)
+            ):
+                return rows
+        with torch.no_grad():
+            rows = torch.cat([p.reshape(-1) for p in older]).view(len(anchors[0]) - 1, -1)
+        self._frozen_cache = (older, [p._version for p in older], rows)
+        return rows
+
+    def _apply(self, fn, recurse=True):
+        self._frozen_cache = None  # a move or cast gives the anchors new storage
+        return super()._apply(fn, recurse)
 
     @property
     def n_anchors(self) -> int:
