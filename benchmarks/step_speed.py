@@ -7,7 +7,9 @@ Prints, in one run:
 
 1. The matmul floor per thread count: the GEMMs of one training step (forward, weight and
    input gradients, for exactly the step's shapes) timed one by one with torch, summed, and
-   given as steps/s (the speed of a step that did nothing but its matmuls).
+   given as steps/s (the speed of a step that did nothing but its matmuls); and a ceiling:
+   the same matmuls plus the elementwise kernels the step's maths needs (GELU and LayerNorm
+   forward and backward, the dropout masks' random bytes), each timed alone at its shapes.
 2. Gradient steps/s of HBC, BC and HiSPO with 1 and 4 anchors (both subspaces grown), on
    the reference path (``hispo_pl.nn.fast.reference_path``: plain autograd modules, masks
    drawn byte by byte, the default Adam, a log call every step, glibc's default allocator
@@ -51,17 +53,21 @@ def build(method: str, obs_dim: int, action_dim: int):
     return module
 
 
-def step_gemms(method: str, dims: dict[str, int], batch: int) -> list[tuple[str, tuple]]:
-    """The matmuls of one training step: (kind, shapes) with kind ``fwd`` (addmm of
-    [B, in] by [in, out]), ``dw`` ([out, B] by [B, in]) or ``dx`` ([B, out] by [out, in])."""
+def step_networks(method: str, dims: dict[str, int]) -> list[tuple[int, int, int]]:
+    """(inputs, hidden, outputs) of each network a training step runs."""
     f, obs, act, goal = 2 * dims["goal"] + 1, dims["obs"], dims["action"], dims["goal"]
     high_in = f + obs + 2 * goal
     if method == "BC":
-        nets = [(high_in, 256, 2 * act)]
-    else:  # HBC and HiSPO (mixing the anchors is a few small products, left out)
-        nets = [(high_in, 64, 2 * goal), (f + obs, 256, 2 * act)]
+        return [(high_in, 256, 2 * act)]
+    # HBC and HiSPO (mixing the anchors is a few small products, left out)
+    return [(high_in, 64, 2 * goal), (f + obs, 256, 2 * act)]
+
+
+def step_gemms(method: str, dims: dict[str, int], batch: int) -> list[tuple[str, tuple]]:
+    """The matmuls of one training step: (kind, shapes) with kind ``fwd`` (addmm of
+    [B, in] by [in, out]), ``dw`` ([out, B] by [B, in]) or ``dx`` ([B, out] by [out, in])."""
     out = []
-    for n_in, h, n_out in nets:
+    for n_in, h, n_out in step_networks(method, dims):
         layers = [(n_in, h), (h, h), (h, h), (h, n_out)]
         for i, (a, b) in enumerate(layers):
             out.append(("fwd", (batch, a, b)))
@@ -95,6 +101,50 @@ def time_gemms(gemms, reps: int = 30) -> float:
             fn(*operands)
             times.append(time.perf_counter() - t)
         total += statistics.median(times)
+    return total
+
+
+def _network_kernels(h: int, batch: int) -> list:
+    """One network's elementwise kernels, as calls: each (LayerNorm, GELU) forward and
+    backward once (the network has three of each), and its masks' random bytes."""
+    import torch
+
+    aten = torch.ops.aten
+    z, grad = torch.randn(batch, h), torch.randn(batch, h)
+    gamma, beta = torch.ones(h), torch.zeros(h)
+    _, mu, rstd = aten.native_layer_norm(z, (h,), gamma, beta, 1e-5)
+    words = torch.empty(3 * batch * h // 8, dtype=torch.int64)
+    return [
+        lambda: aten.gelu(z),
+        lambda: aten.gelu_backward(grad, z),
+        lambda: aten.native_layer_norm(z, (h,), gamma, beta, 1e-5),
+        lambda: aten.native_layer_norm_backward(
+            grad, z, (h,), mu, rstd, gamma, beta, [True, True, True]
+        ),
+        lambda: words.random_(-(2**63), None),
+    ]
+
+
+def time_kernels(method: str, dims: dict[str, int], batch: int, reps: int = 30) -> float:
+    """Seconds of the elementwise kernels the step's maths needs, each timed alone (median of
+    ``reps``) at the step's shapes: per network, three LayerNorms and three GELUs forward and
+    backward, and one draw of random bytes for its three dropout masks. A step that calls
+    these kernels spends at least this beside its matmuls."""
+
+    def median_time(fn) -> float:
+        for _ in range(3):
+            fn()
+        times = []
+        for _ in range(reps):
+            t = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t)
+        return statistics.median(times)
+
+    total = 0.0
+    for _, h, _ in step_networks(method, dims):
+        *per_layer, masks = (median_time(fn) for fn in _network_kernels(h, batch))
+        total += 3 * sum(per_layer) + masks
     return total
 
 
@@ -171,6 +221,9 @@ def _worker(path: str, args: argparse.Namespace, conn) -> None:
                 conn.send(trainer(*rest))
             elif kind == "floor":
                 conn.send(1.0 / time_gemms(step_gemms(rest[0], dims, args.batch_size)))
+            elif kind == "ceiling":  # the matmuls plus the elementwise kernels, as steps/s
+                gemms = time_gemms(step_gemms(rest[0], dims, args.batch_size))
+                conn.send(1.0 / (gemms + time_kernels(rest[0], dims, args.batch_size)))
             elif kind == "rollout":
                 try:
                     conn.send(rollout(*rest))
@@ -221,9 +274,9 @@ def main() -> None:
     for threads in args.threads:
         for r in range(args.rounds):
             for method in args.methods:
-                if method in ("HBC", "BC"):
-                    floors.setdefault((threads, method), []).append(
-                        workers["fast"].call("floor", threads, method)
+                for bound in ("floor", "ceiling") if method in ("HBC", "BC") else ():
+                    floors.setdefault((threads, method, bound), []).append(
+                        workers["fast"].call(bound, threads, method)
                     )
                 for kind in ("bare", "trainer"):
                     order = PATHS if r % 2 == 0 else PATHS[::-1]
@@ -234,22 +287,29 @@ def main() -> None:
     floor = {k: statistics.median(v) for k, v in floors.items()}
 
     print(f"task {args.task}, batch {args.batch_size}, {args.steps} steps x {args.rounds} rounds")
-    print("steps/s (median); floor = the step's matmuls alone; x = fast / reference")
+    print(
+        "steps/s (median); floor = the step's matmuls alone; ceiling = the matmuls plus the "
+        "GELU, LayerNorm and mask-draw kernels, each timed alone; x = fast / reference"
+    )
     head = (
-        f"{'thr':>3} {'method':8} {'floor':>6} | {'ref bare':>8} {'fast bare':>9} {'x':>5} | "
+        f"{'thr':>3} {'method':8} {'floor':>6} {'ceiling':>7} | "
+        f"{'ref bare':>8} {'fast bare':>9} {'x':>5} | "
         f"{'ref Trainer':>11} {'fast Trainer':>12} {'x':>5} | {'fast/floor':>10} "
         f"{'Trainer/bare':>12} {'vs HBC':>6}"
     )
     print(head)
     for threads in args.threads:
         for method in args.methods:
-            fl = floor.get((threads, "BC" if method == "BC" else "HBC"), float("nan"))
+            net = "BC" if method == "BC" else "HBC"
+            fl = floor.get((threads, net, "floor"), float("nan"))
+            ceiling = floor.get((threads, net, "ceiling"), float("nan"))
             rb, fb = med[threads, method, "bare", "reference"], med[threads, method, "bare", "fast"]
             rt = med[threads, method, "trainer", "reference"]
             ft = med[threads, method, "trainer", "fast"]
             hbc = med.get((threads, "HBC", "bare", "fast"), float("nan"))
             print(
-                f"{threads:>3} {method:8} {fl:6.1f} | {rb:8.1f} {fb:9.1f} {fb / rb:5.2f} | "
+                f"{threads:>3} {method:8} {fl:6.1f} {ceiling:7.1f} | "
+                f"{rb:8.1f} {fb:9.1f} {fb / rb:5.2f} | "
                 f"{rt:11.1f} {ft:12.1f} {ft / rt:5.2f} | {fb / fl:10.0%} {ft / fb:12.2f} "
                 f"{fb / hbc:6.2f}"
             )
