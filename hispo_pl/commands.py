@@ -131,6 +131,28 @@ def load_checkpoint_policy(
     return module, module.task_index if as_task is None else as_task - 1
 
 
+def other_task_note(ckpt: str, as_task: int, tasks: list) -> str | None:
+    """A line naming the task a stream run's policy ``as_task`` (0-based) was trained on, when
+    some of ``tasks`` is another maze or variant: acting with the right maze's policy on the
+    wrong variant fails, and the note says why before the figures do."""
+    from .rundir import RunDir
+    from .tasks import parse_task
+
+    spec = RunDir(Path(ckpt).parent).stream_task(as_task)
+    if spec is None:
+        return None
+    own = parse_task(spec)
+    others = [
+        t for t in tasks if (t.family, t.maze, t.variant) != (own.family, own.maze, own.variant)
+    ]
+    if not others:
+        return None
+    return (
+        f"[hispo-pl] note: the policy of task {as_task + 1} was trained on {own}; "
+        f"acting on {', '.join(str(t) for t in others)}"
+    )
+
+
 def evaluate_main(argv: list[str]) -> int:
     """``hispo-pl evaluate``: any checkpoint on any task, seen or not."""
     from .evaluation import RolloutEvaluator, module_policy
@@ -154,6 +176,9 @@ def evaluate_main(argv: list[str]) -> int:
     except UserError as err:
         parser.error(f"--task: {err}")
     module, as_task = load_checkpoint_policy(parser, args.ckpt, args.as_task, [task])
+    note = other_task_note(args.ckpt, as_task, [task])
+    if note and not args.json:
+        print(note)
     evaluator = RolloutEvaluator(task, args.episodes, args.seed)
     result = evaluator.run(module_policy(module, task=as_task), progress=not args.json)
     out = {
@@ -238,6 +263,9 @@ def render_main(argv: list[str]) -> int:
             from .evaluation import module_policy
 
             module, as_task = load_checkpoint_policy(parser, args.ckpt, args.as_task, tasks)
+            note = other_task_note(args.ckpt, as_task, tasks)
+            if note:
+                print(note)
             policy = module_policy(module, task=as_task)
             overlays = [render.rollout_paths(t, policy, args.episodes, args.seed) for t in tasks]
     except (TaskSpecError, DatasetNotFoundError) as err:

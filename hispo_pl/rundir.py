@@ -155,6 +155,12 @@ class RunDir:
             return None
         return json.loads(self.progress_file.read_text())
 
+    def stream_task(self, task: int) -> str | None:
+        """The spec of task ``task`` (0-based) of the stream this directory runs, or ``None``
+        (not a stream run, or no such task)."""
+        stream = (self.read_progress() or {}).get("stream") or []
+        return stream[task] if 0 <= task < len(stream) else None
+
     def write_progress(self, progress: dict) -> None:
         atomic_write_text(self.progress_file, json.dumps(progress, indent=1))
 

@@ -276,3 +276,22 @@ def test_a_knob_the_method_lacks_is_refused(capsys):
     assert main(args) == 2
     err = capsys.readouterr().err
     assert "--eps_low: no callback of this method takes it" in err and "SubspacePruning" in err
+
+
+def test_acting_on_another_task_than_the_policys_own_is_named(tmp_path):
+    from hispo_pl.commands import other_task_note
+    from hispo_pl.rundir import RunDir
+    from hispo_pl.tasks import parse_task
+
+    ckpt = str(tmp_path / "task_02.ckpt")
+    umaze, umaze_pa = parse_task("pointmaze-umaze[5]"), parse_task("pointmaze-umaze-PA")
+    assert other_task_note(ckpt, 1, [umaze]) is None  # no stream run: nothing to compare with
+    RunDir(tmp_path).write_progress(
+        {"stream": ["pointmaze-umaze-N[500]", "pointmaze-umaze-PA[500]"]}
+    )
+    assert other_task_note(ckpt, 0, [umaze]) is None  # the same maze and variant, other episodes
+    assert other_task_note(ckpt, 1, [umaze_pa]) is None
+    note = other_task_note(ckpt, 1, [umaze_pa, umaze])
+    assert "task 2 was trained on pointmaze-umaze-PA[500]" in note
+    assert note.endswith("acting on pointmaze-umaze-N[5]")
+    assert other_task_note(ckpt, 2, [umaze]) is None  # a task the stream does not have
