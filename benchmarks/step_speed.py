@@ -77,6 +77,18 @@ def step_gemms(method: str, dims: dict[str, int], batch: int) -> list[tuple[str,
     return out
 
 
+def median_seconds(fn, reps: int = 30) -> float:
+    """Median seconds of one call of ``fn`` over ``reps`` calls, after three warm-up calls."""
+    for _ in range(3):
+        fn()
+    times = []
+    for _ in range(reps):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times)
+
+
 def time_gemms(gemms, reps: int = 30) -> float:
     """Seconds of one pass over ``gemms`` (each timed alone, median of ``reps``)."""
     import torch
@@ -93,14 +105,7 @@ def time_gemms(gemms, reps: int = 30) -> float:
             fn, operands = torch.mm, (grad.t(), x)
         else:
             fn, operands = torch.mm, (grad, w)
-        for _ in range(3):
-            fn(*operands)
-        times = []
-        for _ in range(reps):
-            t = time.perf_counter()
-            fn(*operands)
-            times.append(time.perf_counter() - t)
-        total += statistics.median(times)
+        total += median_seconds(lambda fn=fn, operands=operands: fn(*operands), reps)
     return total
 
 
@@ -130,20 +135,9 @@ def time_kernels(method: str, dims: dict[str, int], batch: int, reps: int = 30) 
     ``reps``) at the step's shapes: per network, three LayerNorms and three GELUs forward and
     backward, and one draw of random bytes for its three dropout masks. A step that calls
     these kernels spends at least this beside its matmuls."""
-
-    def median_time(fn) -> float:
-        for _ in range(3):
-            fn()
-        times = []
-        for _ in range(reps):
-            t = time.perf_counter()
-            fn()
-            times.append(time.perf_counter() - t)
-        return statistics.median(times)
-
     total = 0.0
     for _, h, _ in step_networks(method, dims):
-        *per_layer, masks = (median_time(fn) for fn in _network_kernels(h, batch))
+        *per_layer, masks = (median_seconds(fn, reps) for fn in _network_kernels(h, batch))
         total += 3 * sum(per_layer) + masks
     return total
 
@@ -221,9 +215,8 @@ def _worker(path: str, args: argparse.Namespace, conn) -> None:
                 conn.send(trainer(*rest))
             elif kind == "floor":
                 conn.send(1.0 / time_gemms(step_gemms(rest[0], dims, args.batch_size)))
-            elif kind == "ceiling":  # the matmuls plus the elementwise kernels, as steps/s
-                gemms = time_gemms(step_gemms(rest[0], dims, args.batch_size))
-                conn.send(1.0 / (gemms + time_kernels(rest[0], dims, args.batch_size)))
+            elif kind == "kernels":  # seconds, added to the floor's for the ceiling
+                conn.send(time_kernels(rest[0], dims, args.batch_size))
             elif kind == "rollout":
                 try:
                     conn.send(rollout(*rest))
@@ -274,7 +267,7 @@ def main() -> None:
     for threads in args.threads:
         for r in range(args.rounds):
             for method in args.methods:
-                for bound in ("floor", "ceiling") if method in ("HBC", "BC") else ():
+                for bound in ("floor", "kernels") if method in ("HBC", "BC") else ():
                     floors.setdefault((threads, method, bound), []).append(
                         workers["fast"].call(bound, threads, method)
                     )
@@ -302,7 +295,7 @@ def main() -> None:
         for method in args.methods:
             net = "BC" if method == "BC" else "HBC"
             fl = floor.get((threads, net, "floor"), float("nan"))
-            ceiling = floor.get((threads, net, "ceiling"), float("nan"))
+            ceiling = 1.0 / (1.0 / fl + floor.get((threads, net, "kernels"), float("nan")))
             rb, fb = med[threads, method, "bare", "reference"], med[threads, method, "bare", "fast"]
             rt = med[threads, method, "trainer", "reference"]
             ft = med[threads, method, "trainer", "fast"]
