@@ -1,0 +1,126 @@
+"""A whole stream's wall time on the reference path against the fast path: same stream, method
+and seed, the two runs side by side (one thread each), through ``hispo-pl fit`` itself.
+
+    python benchmarks/stream_speed.py [--stream pointmaze-1] [--method hispo] [--seed 0]
+        [--steps-per-task N] [--out results/stream-speed] [--config-dir configs]
+
+Each run is the ``fit`` command ``hispo-pl benchmark`` would launch for (stream, method, seed),
+run in a child process of this script, the reference one inside
+``hispo_pl.nn.fast.reference_path`` (plain autograd modules, masks drawn byte by byte, the
+default Adam, a log call every step, glibc's default allocator settings: the training step as
+it was before the fast path). The runs log to ``OUT/runs/<method>-<path>/seed<S>`` and resume
+like any stream; a finished one is not rerun, so a second call only prints the comparison.
+
+Prints, per task, each run's wall time (training, search, pruning and rollout evaluation, as
+``results.json`` records it) and their ratio, then each run's PER, BWT, MEM and anchors, and
+the largest difference between their success matrices. The two paths draw different dropout
+masks, so the results agree within seed noise, not bit for bit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+PATHS = ("reference", "fast")
+
+
+def child(path: str, fit_args: list[str]) -> int:
+    """Run ``hispo-pl fit fit_args`` on ``path``."""
+    from contextlib import nullcontext
+
+    from hispo_pl.cli import main
+    from hispo_pl.nn import fast
+
+    with fast.reference_path() if path == "reference" else nullcontext():
+        return main(fit_args)
+
+
+def planned(args) -> dict:
+    """The two runs: path → (run dir, fit arguments)."""
+    from hispo_pl.benchmark.plan import fit_argv, stream_config_path
+
+    config_dir = Path(args.config_dir)
+    stream_config = stream_config_path(args.stream, config_dir)
+    method_config = (config_dir / "methods" / f"{args.method}.yaml").resolve()
+    out = Path(args.out).resolve()
+    runs = {}
+    for path in PATHS:
+        name = f"{args.method}-{path}"
+        argv = fit_argv(stream_config, method_config, name, args.seed, out, 1, args.steps_per_task)
+        runs[path] = (out / "runs" / name / f"seed{args.seed}", argv)
+    return runs
+
+
+def run_both(runs: dict) -> None:
+    """Start the unfinished runs side by side and wait for them; exit if one fails."""
+    from hispo_pl.benchmark.launch import execute_run, run_env
+    from hispo_pl.rundir import RunDir
+
+    todo = {p: r for p, r in runs.items() if not RunDir(r[0]).results_file.exists()}
+    for path in PATHS:
+        state = "to run" if path in todo else "finished, not rerun"
+        print(f"[stream_speed] {path}: {runs[path][0]} ({state})", flush=True)
+
+    def launch(path: str) -> dict:
+        run_dir, argv = todo[path]
+        command = [str(Path(__file__).resolve()), "--child", path, "--", *argv]
+        return execute_run(
+            command, str(RunDir(run_dir).fit_log), str(RunDir(run_dir).results_file), run_env(1)
+        )
+
+    with ThreadPoolExecutor(max_workers=len(PATHS)) as pool:
+        outcomes = dict(zip(todo, pool.map(launch, todo), strict=True))
+    for path, outcome in outcomes.items():
+        if outcome["results"] is None:
+            sys.exit(
+                f"[stream_speed] the {path} run failed (exit {outcome['returncode']}); its log "
+                f"ends with:\n{outcome['log_tail']}"
+            )
+        print(f"[stream_speed] {path}: done in {outcome['seconds'] / 60:.1f} min", flush=True)
+
+
+def report(runs: dict) -> None:
+    import numpy as np
+
+    from hispo_pl.rundir import RunDir
+
+    results = {p: RunDir(r[0]).read_results() for p, r in runs.items()}
+    ref, fast = (results[p] for p in PATHS)
+    print("\ntask  reference min  fast min  reference/fast")
+    for i, (a, b) in enumerate(zip(ref["wall_time_s"], fast["wall_time_s"], strict=True), start=1):
+        print(f"T{i:02d}   {a / 60:13.2f}  {b / 60:8.2f}  {a / b:14.2f}")
+    total_ref, total_fast = sum(ref["wall_time_s"]), sum(fast["wall_time_s"])
+    print(f"all   {total_ref / 60:13.2f}  {total_fast / 60:8.2f}  {total_ref / total_fast:14.2f}\n")
+    for path, r in results.items():
+        anchors = " ".join(f"{k}={v}" for k, v in r.get("anchors", {}).items())
+        print(
+            f"{path:9s}  PER {100 * r['PER']:5.1f}  BWT {100 * r['BWT']:5.1f}  "
+            f"MEM {r['MEM']:.2f}  anchors {anchors or '-'}"
+        )
+    diff = np.nanmax(np.abs(np.asarray(ref["R"], float) - np.asarray(fast["R"], float)))
+    print(f"largest success difference between the two R matrices: {100 * diff:.1f} points")
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["--child"]:  # --child PATH -- FIT_ARGS
+        return child(argv[1], argv[3:])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--stream", default="pointmaze-1")
+    parser.add_argument("--method", default="hispo")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--steps-per-task", type=int, default=None, help="default: the config's")
+    parser.add_argument("--out", default="results/stream-speed")
+    parser.add_argument("--config-dir", default="configs")
+    args = parser.parse_args(argv)
+    runs = planned(args)
+    run_both(runs)
+    report(runs)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,53 @@
+"""``benchmarks/stream_speed.py`` compares the product's own runs: each is the ``fit`` command the
+benchmark launches for (stream, method, seed), and the reference child really trains on the
+reference path (every switch of the fast path reads it while the command runs)."""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+from pathlib import Path
+
+from hispo_pl.benchmark.plan import fit_argv, stream_config_path
+from hispo_pl.nn import fast
+
+ROOT = Path(__file__).resolve().parents[1]
+spec = importlib.util.spec_from_file_location("stream_speed", ROOT / "benchmarks/stream_speed.py")
+script = importlib.util.module_from_spec(spec)
+sys.modules[spec.name] = script
+spec.loader.exec_module(script)
+
+
+def test_runs_are_the_benchmarks_fit_commands(tmp_path):
+    args = argparse.Namespace(
+        stream="pointmaze-1",
+        method="hispo",
+        seed=3,
+        steps_per_task=50,
+        out=str(tmp_path),
+        config_dir=str(ROOT / "configs"),
+    )
+    runs = script.planned(args)
+    stream = stream_config_path("pointmaze-1", ROOT / "configs")
+    method = (ROOT / "configs/methods/hispo.yaml").resolve()
+    for path in script.PATHS:
+        name = f"hispo-{path}"
+        run_dir, argv = runs[path]
+        assert run_dir == tmp_path / "runs" / name / "seed3"
+        assert argv == fit_argv(stream, method, name, 3, tmp_path, 1, 50)
+        assert "--trainer.max_steps" in argv and str(method) in argv
+
+
+def test_reference_child_runs_fit_on_the_reference_path(monkeypatch):
+    seen = []
+
+    def fake_main(argv):
+        seen.append((list(argv), fast.enabled()))
+        return 0
+
+    monkeypatch.setattr("hispo_pl.cli.main", fake_main)
+    assert script.main(["--child", "reference", "--", "fit", "--config", "x.yaml"]) == 0
+    assert script.main(["--child", "fast", "--", "fit"]) == 0
+    assert seen == [(["fit", "--config", "x.yaml"], False), (["fit"], True)]
+    assert fast.enabled()
