@@ -8,12 +8,14 @@ Prints, in one run:
 1. The matmul floor per thread count: the GEMMs of one training step (forward, weight and
    input gradients, for exactly the step's shapes) timed one by one with torch, summed, and
    given as steps/s (the speed of a step that did nothing but its matmuls); and a ceiling:
-   the same matmuls plus the elementwise kernels the step's maths needs (GELU and LayerNorm
-   forward and backward, the dropout masks' random bytes), each timed alone at its shapes.
+   the same matmuls plus the elementwise kernels the fast path calls for the step's maths
+   (LayerNorm → GELU → dropout forward and backward: the fused kernels at 1 thread where they
+   are built, else aten's; the dropout masks' random bytes), each timed alone at its shapes.
 2. Gradient steps/s of HBC, BC and HiSPO with 1 and 4 anchors (both subspaces grown), on
    the reference path (``hispo_pl.nn.fast.reference_path``: plain autograd modules, masks
    drawn byte by byte, the default Adam, a log call every step, glibc's default allocator
-   settings) and on the fast path, as a bare loop (sampler + step) and through a Lightning
+   settings) and on the fast path (``HISPO_PL_NATIVE=0`` in the environment: without the
+   fused kernels), as a bare loop (sampler + step) and through a Lightning
    Trainer (TaskDataModule, a TensorBoard logger, no progress bar; start-up not counted).
    Each path runs in its own worker process (the allocator setting is process-wide); the
    parent alternates between them in short blocks over ``--rounds`` rounds and prints the
@@ -110,15 +112,29 @@ def time_gemms(gemms, reps: int = 30) -> float:
 
 
 def _network_kernels(h: int, batch: int) -> list:
-    """One network's elementwise kernels, as calls: each (LayerNorm, GELU) forward and
-    backward once (the network has three of each), and its masks' random bytes."""
+    """One network's elementwise kernels, as calls: each layer's LayerNorm → GELU → dropout
+    forward and backward once (the network has three), and its masks' random bytes. The
+    layer's kernels are the ones the fast path calls: the fused ones
+    (:mod:`hispo_pl.nn.native`) where they run, else aten's LayerNorm and GELU."""
     import torch
+
+    from hispo_pl.nn import native
 
     aten = torch.ops.aten
     z, grad = torch.randn(batch, h), torch.randn(batch, h)
     gamma, beta = torch.ones(h), torch.zeros(h)
-    _, mu, rstd = aten.native_layer_norm(z, (h,), gamma, beta, 1e-5)
     words = torch.empty(3 * batch * h // 8, dtype=torch.int64)
+    keep = torch.randint(0, 256, (batch, h), dtype=torch.uint8)
+    draw = [lambda: words.random_(-(2**63), None)]
+    if native.usable(z, keep):
+        dropout = (keep, 26, 1.1)
+        _, mu, rstd = native.ln_gelu_drop_forward(z, gamma, beta, 1e-5, dropout)
+        return [
+            lambda: native.ln_gelu_drop_forward(z, gamma, beta, 1e-5, dropout),
+            lambda: native.ln_gelu_drop_backward(grad, (z, mu, rstd), gamma, beta, dropout),
+            *draw,
+        ]
+    _, mu, rstd = aten.native_layer_norm(z, (h,), gamma, beta, 1e-5)
     return [
         lambda: aten.gelu(z),
         lambda: aten.gelu_backward(grad, z),
@@ -126,15 +142,15 @@ def _network_kernels(h: int, batch: int) -> list:
         lambda: aten.native_layer_norm_backward(
             grad, z, (h,), mu, rstd, gamma, beta, [True, True, True]
         ),
-        lambda: words.random_(-(2**63), None),
+        *draw,
     ]
 
 
 def time_kernels(method: str, dims: dict[str, int], batch: int, reps: int = 30) -> float:
     """Seconds of the elementwise kernels the step's maths needs, each timed alone (median of
-    ``reps``) at the step's shapes: per network, three LayerNorms and three GELUs forward and
-    backward, and one draw of random bytes for its three dropout masks. A step that calls
-    these kernels spends at least this beside its matmuls."""
+    ``reps``) at the step's shapes: per network, three layers' LayerNorm → GELU → dropout
+    forward and backward, and one draw of random bytes for its three dropout masks. A step that
+    calls these kernels spends at least this beside its matmuls."""
     total = 0.0
     for _, h, _ in step_networks(method, dims):
         *per_layer, masks = (median_seconds(fn, reps) for fn in _network_kernels(h, batch))
@@ -282,7 +298,8 @@ def main() -> None:
     print(f"task {args.task}, batch {args.batch_size}, {args.steps} steps x {args.rounds} rounds")
     print(
         "steps/s (median); floor = the step's matmuls alone; ceiling = the matmuls plus the "
-        "GELU, LayerNorm and mask-draw kernels, each timed alone; x = fast / reference"
+        "fast path's LayerNorm/GELU/dropout and mask-draw kernels, each timed alone; "
+        "x = fast / reference"
     )
     head = (
         f"{'thr':>3} {'method':8} {'floor':>6} {'ceiling':>7} | "

@@ -1,5 +1,6 @@
 """The fast training path (hispo_pl.nn.fast) computes today's step: same loss, same gradients,
-same optimiser update as plain autograd modules and the default Adam, given the same masks."""
+same optimiser update as plain autograd modules and the default Adam, given the same dropout
+bytes."""
 
 from __future__ import annotations
 
@@ -17,6 +18,9 @@ from hispo_pl.modules import BC, CSPO, HBC, HiLOW, HiSPO
 from hispo_pl.nn import fast
 from hispo_pl.nn.mlp import ResidualMLP
 
+# one thread: the layout runs train in, where the fused kernels (hispo_pl.nn.native) are used
+pytestmark = pytest.mark.usefixtures("one_thread")
+
 
 def make_batch(n: int = 96, obs_dim: int = 4, action_dim: int = 2) -> dict[str, torch.Tensor]:
     g = torch.Generator().manual_seed(7)
@@ -29,17 +33,17 @@ def make_batch(n: int = 96, obs_dim: int = 4, action_dim: int = 2) -> dict[str, 
     }
 
 
-def seeded_masks(seed: int):
-    """A stand-in for ``fast.dropout_masks`` whose masks depend only on ``seed`` and the order
+def seeded_bytes(seed: int):
+    """A stand-in for ``fast.dropout_bytes`` whose bytes depend only on ``seed`` and the order
     of the calls: one call for three masks gives what three calls for one give."""
     gen = torch.Generator().manual_seed(seed)
 
-    def draw(count, shape, threshold, scale, like):
-        masks = []
-        for _ in range(count):
-            noise = torch.randint(0, 256, tuple(shape), generator=gen, dtype=torch.uint8)
-            masks.append((noise >= threshold).to(like.dtype) * scale)
-        return masks
+    def draw(count, shape, device):
+        draws = [
+            torch.randint(0, 256, tuple(shape), generator=gen, dtype=torch.uint8)
+            for _ in range(count)
+        ]
+        return torch.stack(draws).to(device)
 
     return draw
 
@@ -58,9 +62,9 @@ def graph_ops(tensor: torch.Tensor) -> set[str]:
 
 
 def step_result(module, batch, reference: bool, monkeypatch):
-    """Loss and gradients of one training step, masks from ``seeded_masks(0)``, noise on the
-    anchor weights from seed 1."""
-    monkeypatch.setattr(fast, "dropout_masks", seeded_masks(0))
+    """Loss and gradients of one training step, dropout bytes from ``seeded_bytes(0)``, noise
+    on the anchor weights from seed 1."""
+    monkeypatch.setattr(fast, "dropout_bytes", seeded_bytes(0))
     module.train()
     module.zero_grad(set_to_none=True)
     torch.manual_seed(1)
@@ -112,8 +116,8 @@ def test_residual_mlp_function_matches_its_definition():
     net = ResidualMLP(5, 16, 3)
     params = net.parameter_tensors()
     x = torch.randn(2, 7, 5, requires_grad=True)
-    masks = fast.dropout_masks(3, (2, 7, 16), 26, 256 / 230, x)
-    for m in (masks, None):
+    dropout = fast.DropoutDraw(fast.dropout_bytes(3, (2, 7, 16), x.device), 26, 256 / 230)
+    for m in (dropout, None):
         out_f = fast.residual_mlp(x, params, m)
         out_r = fast.residual_mlp_reference(x, params, m)
         torch.testing.assert_close(out_f, out_r)

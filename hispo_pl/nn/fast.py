@@ -3,11 +3,13 @@
 A training step of the backbone is a few large matmuls and a dozen elementwise passes over
 ``[batch, hidden]`` activations. Autograd runs each pass as its own node; here the whole
 network (Linear→LN→GELU→dropout, the residual block, GELU→dropout, the head) is one autograd
-:class:`torch.autograd.Function` with a hand-written backward: the same aten kernels
-(``addmm``, ``native_layer_norm``, ``gelu`` and their backwards), in place where a buffer is
-fresh, and no per-op graph bookkeeping. Dropout masks come from random 64-bit words viewed
-as bytes (one draw for all of a network's masks), which keeps :class:`~hispo_pl.nn.mlp.
-FastDropout`'s distribution (keep a unit iff a uniform byte ≥ ``threshold``).
+:class:`torch.autograd.Function` with a hand-written backward and no per-op graph
+bookkeeping. Each layer's LayerNorm → GELU → dropout runs as one fused kernel per direction
+(:mod:`~hispo_pl.nn.native`) where it is built and the process has one thread, else as
+aten's kernels (``native_layer_norm``, ``gelu`` and their backwards, in place where a buffer
+is fresh). Dropout comes from random 64-bit words viewed as bytes (one draw for all of a
+network's masks), which keeps :class:`~hispo_pl.nn.mlp.FastDropout`'s distribution (keep a
+unit iff a uniform byte ≥ ``threshold``).
 
 Networks take this path while training with gradients enabled; evaluation, ``torch.func``
 transforms (which run in eval mode here) and batched subspace weights keep the plain modules.
@@ -23,10 +25,13 @@ import math
 import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
+
+from . import native
 
 _aten = torch.ops.aten
 _INT64_MIN = -(2**63)
@@ -74,58 +79,70 @@ def retain_freed_memory() -> bool:
     return _allocator_tuned
 
 
+class DropoutDraw(NamedTuple):
+    """One draw of dropout for ``count`` masks: a unit is kept, and scaled by ``scale``, iff its
+    random byte in ``noise`` (uint8 ``[count, *shape]``) is ≥ ``threshold``."""
+
+    noise: Tensor
+    threshold: int
+    scale: float
+
+    def masks(self, dtype: torch.dtype) -> list[Tensor]:
+        """The ``count`` masks as ``dtype`` tensors: ``scale`` where kept, else 0."""
+        masks = torch.empty(self.noise.shape, dtype=dtype, device=self.noise.device)
+        torch.ge(self.noise, self.threshold, out=masks)
+        return list(masks.mul_(self.scale).unbind(0))
+
+
+def dropout_bytes(count: int, shape: Sequence[int], device: torch.device) -> Tensor:
+    """Uniform random bytes, uint8 ``[count, *shape]``: on the fast path the bytes of one draw
+    of full-range 64-bit words, on the reference path one draw per byte."""
+    full = (count, *shape)
+    if not _enabled:
+        return torch.empty(full, dtype=torch.uint8, device=device).random_()
+    n = math.prod(full)
+    words = torch.empty((n + 7) // 8, dtype=torch.int64, device=device)
+    return words.random_(_INT64_MIN, None).view(torch.uint8)[:n].view(full)
+
+
 def dropout_masks(
     count: int, shape: Sequence[int], threshold: int, scale: float, like: Tensor
 ) -> list[Tensor]:
     """``count`` inverted-dropout masks of ``shape`` (dtype and device of ``like``): ``scale``
-    where a uniform random byte is ≥ ``threshold``, else 0.
-
-    Fast path: the bytes of one draw of full-range 64-bit words for all masks, compared
-    straight into a float buffer. Reference path: one uint8 draw per mask, compared, cast.
-    """
-    n = math.prod(shape)
-    if not _enabled:
-        out = []
-        for _ in range(count):
-            noise = torch.empty(tuple(shape), dtype=torch.uint8, device=like.device).random_()
-            out.append((noise >= threshold).to(like.dtype).mul_(scale))
-        return out
-    words = torch.empty((count * n + 7) // 8, dtype=torch.int64, device=like.device)
-    noise = words.random_(_INT64_MIN, None).view(torch.uint8)[: count * n]
-    masks = torch.empty((count, *shape), dtype=like.dtype, device=like.device)
-    torch.ge(noise.view(masks.shape), threshold, out=masks)
-    return list(masks.mul_(scale).unbind(0))
+    where a uniform random byte is ≥ ``threshold``, else 0."""
+    noise = dropout_bytes(count, shape, like.device)
+    return DropoutDraw(noise, threshold, scale).masks(like.dtype)
 
 
 def residual_mlp(
     x: Tensor,
     params: Sequence[Tensor],
-    masks: Sequence[Tensor] | None,
+    dropout: DropoutDraw | None,
     eps: Sequence[float] = (1e-5, 1e-5, 1e-5),
 ) -> Tensor:
     """The residual MLP's training forward as one autograd node.
 
     ``params``: the input linear's weight and bias, its LayerNorm's weight and bias, the
     block's two (linear, LayerNorm) pairs likewise, and the head's weight and bias (14
-    tensors, weights ``[out, in]`` as ``nn.Linear`` keeps them). ``masks``: the three dropout
-    masks (input, block, output; already scaled), or ``None`` for no dropout. ``eps``: the
-    three LayerNorms' epsilons.
+    tensors, weights ``[out, in]`` as ``nn.Linear`` keeps them). ``dropout``: the draw of the
+    three masks (input, block, output; ``noise`` of shape ``[3, *x.shape[:-1], hidden]``), or
+    ``None`` for no dropout. ``eps``: the three LayerNorms' epsilons.
     """
     if len(params) != 14:
         raise ValueError(f"residual_mlp takes 14 parameter tensors, got {len(params)}")
-    m0, m1, m2 = masks if masks is not None else (None, None, None)
-    return _ResidualMLPFunction.apply(x, m0, m1, m2, tuple(eps), *params)
+    noise, threshold, scale = dropout if dropout is not None else (None, 0, 1.0)
+    return _ResidualMLPFunction.apply(x, noise, threshold, scale, tuple(eps), *params)
 
 
 def residual_mlp_reference(
     x: Tensor,
     params: Sequence[Tensor],
-    masks: Sequence[Tensor] | None,
+    dropout: DropoutDraw | None,
     eps: Sequence[float] = (1e-5, 1e-5, 1e-5),
 ) -> Tensor:
     """:func:`residual_mlp` with plain autograd ops (its definition, for tests)."""
     w0, b0, g0, e0, w1, b1, g1, e1, w2, b2, g2, e2, wh, bh = params
-    m0, m1, m2 = masks if masks is not None else (1.0, 1.0, 1.0)
+    m0, m1, m2 = dropout.masks(x.dtype) if dropout is not None else (1.0, 1.0, 1.0)
     hidden = (w0.shape[0],)
     h = F.gelu(F.layer_norm(F.linear(x, w0, b0), hidden, g0, e0, eps[0])) * m0
     b = F.gelu(F.layer_norm(F.linear(h, w1, b1), hidden, g1, e1, eps[1])) * m1
@@ -133,82 +150,104 @@ def residual_mlp_reference(
     return F.linear(F.gelu(h + b) * m2, wh, bh)
 
 
-def _ln_gelu_drop(a: Tensor, g: Tensor, e: Tensor, eps: float, m: Tensor | None):
-    """LayerNorm → GELU → dropout; returns the output and what the backward needs."""
-    z, mu, rstd = _aten.native_layer_norm(a, (a.shape[-1],), g, e, eps)
-    y = F.gelu(z)
-    if m is not None:
-        y.mul_(m)
-    return y, z, mu, rstd
+class _AtenLayers:
+    """LayerNorm → GELU → dropout with aten kernels and float masks: each layer saves its
+    input, the rows' statistics and the GELU's input."""
+
+    def __init__(self, noise: Tensor | None, threshold: int, scale: float, dtype: torch.dtype):
+        masks = DropoutDraw(noise, threshold, scale).masks(dtype) if noise is not None else None
+        self.masks = [_flat(m) for m in masks] if masks is not None else [None] * 3
+
+    def forward(self, i: int, a: Tensor, g: Tensor, e: Tensor, eps: float, res=None):
+        pre, mu, rstd = _aten.native_layer_norm(a, (a.shape[-1],), g, e, eps)
+        if res is not None:
+            pre.add_(res)
+        y = F.gelu(pre)
+        if self.masks[i] is not None:
+            y.mul_(self.masks[i])
+        return y, (a, mu, rstd, pre)
+
+    def backward(self, i: int, dy: Tensor, saved, g: Tensor, e: Tensor, res=None, dpre=False):
+        """``dpre`` (when asked), ``da``, ``dg``, ``de`` and ``da``'s column sums (the bias
+        gradient of the linear layer that made ``a``); ``dy`` is overwritten."""
+        a, mu, rstd, pre = saved
+        if self.masks[i] is not None:
+            dy.mul_(self.masks[i])
+        d_pre = _aten.gelu_backward(dy, pre)
+        da, dg, de = _aten.native_layer_norm_backward(
+            d_pre, a, (a.shape[-1],), mu, rstd, g, e, [True, True, True]
+        )
+        return (d_pre if dpre else None), da, dg, de, da.sum(0)
 
 
-def _ln_backward(dz: Tensor, a: Tensor, mu: Tensor, rstd: Tensor, g: Tensor, e: Tensor):
-    return _aten.native_layer_norm_backward(
-        dz, a, (a.shape[-1],), mu, rstd, g, e, [True, True, True]
-    )
+class _NativeLayers:
+    """The same with the fused kernels (:mod:`~hispo_pl.nn.native`) and the dropout's bytes:
+    each layer saves its input and the rows' statistics; the backward recomputes the rest."""
+
+    def __init__(self, noise: Tensor | None, threshold: int, scale: float, rows: int):
+        keep = [None] * 3 if noise is None else noise.reshape(3, rows, -1).unbind(0)
+        self.dropout = [None if k is None else (k, threshold, scale) for k in keep]
+
+    def forward(self, i: int, a: Tensor, g: Tensor, e: Tensor, eps: float, res=None):
+        y, mu, rstd = native.ln_gelu_drop_forward(a, g, e, eps, self.dropout[i], res)
+        return y, (a, mu, rstd)
+
+    def backward(self, i: int, dy: Tensor, saved, g: Tensor, e: Tensor, res=None, dpre=False):
+        return native.ln_gelu_drop_backward(dy, saved, g, e, self.dropout[i], res, dpre)
 
 
-def _linear_backward(da: Tensor, inp: Tensor) -> tuple[Tensor, Tensor]:
-    """Weight and bias gradients of ``a = inp @ W.T + b`` (2-D).
+def _weight_grad(da: Tensor, inp: Tensor) -> Tensor:
+    """The weight gradient of ``a = inp @ W.T + b`` (2-D).
 
     A GEMM whose result has few columns is several times slower than its transpose (a
     network's first layer has few inputs), so the product is taken with the smaller side
     first."""
     if inp.shape[1] < da.shape[1]:
-        return inp.t().mm(da).t().contiguous(), da.sum(0)
-    return da.t().mm(inp), da.sum(0)
+        return inp.t().mm(da).t().contiguous()
+    return da.t().mm(inp)
 
 
 class _ResidualMLPFunction(torch.autograd.Function):
-    """Forward and hand-written backward of :func:`residual_mlp` (2-D input)."""
+    """Forward and hand-written backward of :func:`residual_mlp` (2-D input): the fused
+    kernels where they are built and take the tensors, else the aten kernels."""
 
     @staticmethod
-    def forward(ctx, x, m0, m1, m2, eps, w0, b0, g0, e0, w1, b1, g1, e1, w2, b2, g2, e2, wh, bh):
+    def forward(
+        ctx, x, noise, threshold, scale, eps,
+        w0, b0, g0, e0, w1, b1, g1, e1, w2, b2, g2, e2, wh, bh,
+    ):  # fmt: skip
         lead = x.shape[:-1]
         x2 = x.reshape(-1, x.shape[-1])
+        if native.usable(x2, noise, w0, g0, e0, g1, e1, g2, e2):
+            layers = _NativeLayers(noise, threshold, scale, x2.shape[0])
+        else:
+            layers = _AtenLayers(noise, threshold, scale, x.dtype)
         a0 = torch.addmm(b0, x2, w0.t())
-        h0, z0, mu0, rs0 = _ln_gelu_drop(a0, g0, e0, eps[0], _flat(m0))
-        a1 = torch.addmm(b1, h0, w1.t())
-        u1, z1, mu1, rs1 = _ln_gelu_drop(a1, g1, e1, eps[1], _flat(m1))
-        a2 = torch.addmm(b2, u1, w2.t())
-        s, mu2, rs2 = _aten.native_layer_norm(a2, (a2.shape[-1],), g2, e2, eps[2])
-        s.add_(h0)  # the residual sum, input of the output GELU
-        h2 = F.gelu(s)
-        if m2 is not None:
-            h2.mul_(_flat(m2))
+        h0, saved0 = layers.forward(0, a0, g0, e0, eps[0])
+        u1, saved1 = layers.forward(1, torch.addmm(b1, h0, w1.t()), g1, e1, eps[1])
+        # the block's last LayerNorm plus the skip is the input of the output GELU
+        h2, saved2 = layers.forward(2, torch.addmm(b2, u1, w2.t()), g2, e2, eps[2], res=h0)
         out = torch.addmm(bh, h2, wh.t())
-        ctx.save_for_backward(
-            x2, w0, g0, e0, w1, g1, e1, w2, g2, e2, wh, _flat(m0), _flat(m1), _flat(m2),
-            a0, mu0, rs0, z0, h0, a1, mu1, rs1, z1, u1, a2, mu2, rs2, s, h2,
-        )  # fmt: skip
-        ctx.has_masks = m0 is not None
-        ctx.lead = lead
+        ctx.save_for_backward(x2, w0, g0, e0, w1, g1, e1, w2, g2, e2, wh)
+        ctx.layers, ctx.saved, ctx.lead = layers, (saved0, saved1, saved2, h0, u1, h2), lead
         return out.reshape(*lead, out.shape[-1])
 
     @staticmethod
     def backward(ctx, dout):
-        saved = ctx.saved_tensors
-        x, w0, g0, e0, w1, g1, e1, w2, g2, e2, wh, m0, m1, m2 = saved[:14]
-        a0, mu0, rs0, z0, h0, a1, mu1, rs1, z1, u1, a2, mu2, rs2, s, h2 = saved[14:]
+        x, w0, g0, e0, w1, g1, e1, w2, g2, e2, wh = ctx.saved_tensors
+        (saved0, saved1, saved2, h0, u1, h2), layers = ctx.saved, ctx.layers
         dout = dout.reshape(-1, dout.shape[-1])
-        dwh, dbh = _linear_backward(dout, h2)
-        dh2 = dout.mm(wh)
-        if ctx.has_masks:
-            dh2.mul_(m2)
-        ds = _aten.gelu_backward(dh2, s)  # flows into the block's output and the skip
-        da2, dg2, de2 = _ln_backward(ds, a2, mu2, rs2, g2, e2)
-        dw2, db2 = _linear_backward(da2, u1)
-        du1 = da2.mm(w2)
-        if ctx.has_masks:
-            du1.mul_(m1)
-        da1, dg1, de1 = _ln_backward(_aten.gelu_backward(du1, z1), a1, mu1, rs1, g1, e1)
-        dw1, db1 = _linear_backward(da1, h0)
+        dwh, dbh = _weight_grad(dout, h2), dout.sum(0)
+        # ds, the output GELU's input gradient, flows into the block's output and the skip
+        ds, da2, dg2, de2, db2 = layers.backward(2, dout.mm(wh), saved2, g2, e2, h0, dpre=True)
+        dw2 = _weight_grad(da2, u1)
+        _, da1, dg1, de1, db1 = layers.backward(1, da2.mm(w2), saved1, g1, e1)
+        dw1 = _weight_grad(da1, h0)
         dh0 = torch.addmm(ds, da1, w1)  # the skip's gradient plus the block's
-        if ctx.has_masks:
-            dh0.mul_(m0)
-        da0, dg0, de0 = _ln_backward(_aten.gelu_backward(dh0, z0), a0, mu0, rs0, g0, e0)
-        dw0, db0 = _linear_backward(da0, x)
+        _, da0, dg0, de0, db0 = layers.backward(0, dh0, saved0, g0, e0)
+        dw0 = _weight_grad(da0, x)
         dx = da0.mm(w0).reshape(*ctx.lead, x.shape[-1]) if ctx.needs_input_grad[0] else None
+        del ctx.layers, ctx.saved  # free the activations now, not with the graph
         grads = (dw0, db0, dg0, de0, dw1, db1, dg1, de1, dw2, db2, dg2, de2, dwh, dbh)
         return (dx, None, None, None, None, *grads)
 

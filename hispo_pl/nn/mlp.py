@@ -45,13 +45,15 @@ class FastDropout(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         if not self.training or self.threshold == 0:
             return x
-        return x * self.masks(1, x.shape, x)[0]
+        return x * fast.dropout_masks(1, x.shape, self.threshold, self.scale, x)[0]
 
-    def masks(self, count: int, shape: tuple[int, ...], like: Tensor) -> list[Tensor] | None:
-        """``count`` scaled masks of ``shape`` for ``like``, or ``None`` without dropout."""
+    def draw(self, count: int, shape: tuple[int, ...], like: Tensor) -> fast.DropoutDraw | None:
+        """One draw for ``count`` masks of ``shape`` on ``like``'s device (the fast path's),
+        or ``None`` without dropout."""
         if self.threshold == 0:
             return None
-        return fast.dropout_masks(count, shape, self.threshold, self.scale, like)
+        noise = fast.dropout_bytes(count, shape, like.device)
+        return fast.DropoutDraw(noise, self.threshold, self.scale)
 
 
 class ResidualMLP(nn.Module):
@@ -78,7 +80,7 @@ class ResidualMLP(nn.Module):
 
     def forward(self, x: Tensor) -> Tensor:
         if self.training and torch.is_grad_enabled() and fast.enabled():
-            return fast.residual_mlp(x, self.parameter_tensors(), self.train_masks(x), self.eps())
+            return fast.residual_mlp(x, self.parameter_tensors(), self.train_dropout(x), self.eps())
         h = self.inp(x)
         h = self.out(h + self.block(h))
         return self.head(h)
@@ -92,10 +94,10 @@ class ResidualMLP(nn.Module):
     def eps(self) -> tuple[float, float, float]:
         return self.inp[1].eps, self.block[1].eps, self.block[5].eps
 
-    def train_masks(self, x: Tensor) -> list[Tensor] | None:
+    def train_dropout(self, x: Tensor) -> fast.DropoutDraw | None:
         """The step's three dropout masks (input, block, output) in one draw."""
         shape = (*x.shape[:-1], self.inp[0].out_features)
-        return self.inp[3].masks(3, shape, x)
+        return self.inp[3].draw(3, shape, x)
 
 
 def split_gaussian(raw: Tensor, out_dim: int, log_std_min: float, log_std_max: float):

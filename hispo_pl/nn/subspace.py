@@ -287,9 +287,9 @@ class SubspaceResidualMLP(nn.Module):
         if alpha.dim() == 1 and self.training and torch.is_grad_enabled() and fast.enabled():
             params = self._mixed_parameters(alpha)
             shape = (*x.shape[:-1], self.inp_norm.dim)
-            masks = self.drop_inp.masks(3, shape, x)
+            dropout = self.drop_inp.draw(3, shape, x)
             eps = (self.inp_norm.eps, self.block_norm1.eps, self.block_norm2.eps)
-            return fast.residual_mlp(x, params, masks, eps)
+            return fast.residual_mlp(x, params, dropout, eps)
         h = self.drop_inp(self.act(self.inp_norm(self.inp_linear(x, alpha), alpha)))
         b = self.drop_block(self.act(self.block_norm1(self.block_linear1(h, alpha), alpha)))
         b = self.block_norm2(self.block_linear2(b, alpha), alpha)

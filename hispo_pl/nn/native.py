@@ -1,0 +1,201 @@
+"""The fused LayerNorm → GELU → dropout kernels of ``fused.c``, built with the machine's C
+compiler on first use and called through ctypes.
+
+Torch runs LayerNorm, GELU, the mask's product and their backwards as separate kernels, each a
+pass over a ``[batch, hidden]`` activation, plus one more for a linear layer's bias gradient;
+``fused.c`` does each direction in one pass per row, which matters most in the backward, where
+every pass reads activations saved long before. Same maths as the aten kernels (tested).
+
+The library is compiled once per machine (``-march=native``, the vector ``erff``/``expf`` of
+glibc's libmvec) into ``$HISPO_PL_CACHE`` (default ``~/.cache/hispo-pl``), keyed by the
+source, the flags, the compiler and the CPU. Without a C compiler, off glibc, or with
+``HISPO_PL_NATIVE=0``, :func:`library` returns ``None`` and :mod:`~hispo_pl.nn.fast` keeps the
+aten kernels.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import logging
+import os
+import platform
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+log = logging.getLogger(__name__)
+
+SOURCE = Path(__file__).with_name("fused.c")
+FLAGS = ("-O3", "-march=native", "-fno-math-errno", "-fopenmp-simd", "-shared", "-fPIC")
+LIBS = ("-lmvec", "-lm")
+_P, _LONG, _INT, _FLOAT = ctypes.c_void_p, ctypes.c_long, ctypes.c_int, ctypes.c_float
+_SIGNATURES = {
+    "ln_gelu_drop_forward": [_LONG, _LONG, *[_P] * 5, _INT, _FLOAT, _FLOAT, *[_P] * 3],
+    "ln_gelu_drop_backward": [_LONG, _LONG, _P, _P, _INT, _FLOAT, *[_P] * 12],
+}
+_state: dict[str, ctypes.CDLL | None] = {}
+
+
+def cache_dir() -> Path:
+    """Where built libraries go: ``$HISPO_PL_CACHE``, else ``$XDG_CACHE_HOME/hispo-pl``, else
+    ``~/.cache/hispo-pl``."""
+    if os.environ.get("HISPO_PL_CACHE"):
+        return Path(os.environ["HISPO_PL_CACHE"])
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "hispo-pl"
+
+
+def _cpu_key() -> str:
+    """The CPU's model and feature flags (``-march=native`` builds for exactly them)."""
+    try:
+        info = Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        return platform.processor()
+    wanted = ("model name", "flags", "Features", "CPU part")
+    return "\n".join(sorted({line for line in info if line.split(":")[0].strip() in wanted}))
+
+
+def build(compiler: str | None = None, directory: Path | None = None) -> Path | None:
+    """Compile ``fused.c`` unless this machine's library is there; its path, or ``None`` when
+    there is no compiler or the build fails (the reason is logged)."""
+    compiler = compiler or os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        log.info("no C compiler found: the fused kernels are off")
+        return None
+    try:
+        version = subprocess.run(
+            [compiler, "--version"], capture_output=True, text=True, timeout=30
+        ).stdout
+    except (OSError, subprocess.SubprocessError) as err:
+        log.info("C compiler %s unusable (%s): the fused kernels are off", compiler, err)
+        return None
+    key = hashlib.sha256(
+        "\0".join([SOURCE.read_text(), *FLAGS, *LIBS, version, _cpu_key()]).encode()
+    ).hexdigest()[:16]
+    directory = Path(directory) if directory is not None else cache_dir()
+    path = directory / f"fused-{key}.so"
+    if path.exists():
+        return path
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(dir=directory) as tmp:
+            out = Path(tmp) / path.name
+            done = subprocess.run(
+                [compiler, *FLAGS, str(SOURCE), "-o", str(out), *LIBS],
+                capture_output=True,
+                text=True,
+                timeout=300,
+            )
+            if done.returncode != 0:
+                log.info("building %s failed: the fused kernels are off\n%s", SOURCE, done.stderr)
+                return None
+            os.replace(out, path)  # atomic: a concurrent build of the same key is harmless
+    except (OSError, subprocess.SubprocessError) as err:
+        log.info("building %s failed (%s): the fused kernels are off", SOURCE, err)
+        return None
+    return path
+
+
+def library() -> ctypes.CDLL | None:
+    """The loaded kernels (built on the first call), or ``None`` where they are off."""
+    if "lib" not in _state:
+        _state["lib"] = _load()
+    return _state["lib"]
+
+
+def _load() -> ctypes.CDLL | None:
+    if os.environ.get("HISPO_PL_NATIVE", "1") == "0" or platform.system() != "Linux":
+        return None
+    path = build()
+    if path is None:
+        return None
+    try:
+        lib = ctypes.CDLL(str(path))
+    except OSError as err:
+        log.info("loading %s failed (%s): the fused kernels are off", path, err)
+        return None
+    for name, argtypes in _SIGNATURES.items():
+        getattr(lib, name).argtypes = argtypes
+        getattr(lib, name).restype = None
+    return lib
+
+
+def usable(*tensors: Tensor | None) -> bool:
+    """Whether the kernels are built and take these tensors (on the CPU, contiguous, float32 or,
+    for dropout bytes, uint8; ``None`` stands for an absent dropout or residual) in a 1-thread
+    process (the kernels are single-threaded; with more threads aten's kernels share the
+    work)."""
+    return (
+        torch.get_num_threads() == 1
+        and library() is not None
+        and all(
+            t is None
+            or (
+                t.dtype in (torch.float32, torch.uint8)
+                and t.device.type == "cpu"
+                and t.is_contiguous()
+            )
+            for t in tensors
+        )
+    )
+
+
+def _ptr(t: Tensor | None) -> int | None:
+    return None if t is None else t.data_ptr()
+
+
+Dropout = tuple[Tensor, int, float]
+"""A layer's dropout: uint8 bytes of the activation's shape, threshold, scale (a unit is kept,
+times the scale, iff its byte is ≥ the threshold)."""
+
+
+def _dropout_args(dropout: Dropout | None) -> tuple[int | None, int, float]:
+    if dropout is None:
+        return None, 0, 1.0
+    keep, threshold, scale = dropout
+    return _ptr(keep), threshold, scale
+
+
+def ln_gelu_drop_forward(
+    a: Tensor, g: Tensor, e: Tensor, eps: float, dropout: Dropout | None, res: Tensor | None = None
+) -> tuple[Tensor, Tensor, Tensor]:
+    """``y = GELU(LayerNorm(a; g, e) [+ res]) [* dropout]`` for a 2-D ``a``; returns ``y`` and
+    the rows' mean and reciprocal standard deviation."""
+    rows, cols = a.shape
+    y, mu, rstd = torch.empty_like(a), a.new_empty(rows), a.new_empty(rows)
+    library().ln_gelu_drop_forward(
+        rows, cols, _ptr(a), _ptr(g), _ptr(e), _ptr(res), *_dropout_args(dropout), eps,
+        _ptr(y), _ptr(mu), _ptr(rstd),
+    )  # fmt: skip
+    return y, mu, rstd
+
+
+def ln_gelu_drop_backward(
+    dy: Tensor,
+    saved: tuple[Tensor, Tensor, Tensor],
+    g: Tensor,
+    e: Tensor,
+    dropout: Dropout | None,
+    res: Tensor | None = None,
+    want_dpre: bool = False,
+) -> tuple[Tensor | None, Tensor, Tensor, Tensor, Tensor]:
+    """Gradients of :func:`ln_gelu_drop_forward` given ``dy`` and ``saved`` (its input ``a``
+    and the rows' mean and reciprocal std): ``dpre``, the gradient of the GELU's input (when
+    wanted, else ``None``), ``da``, ``dg``, ``de``, and ``db``, the column sums of ``da`` (the
+    bias gradient of the linear layer that made ``a``)."""
+    a, mu, rstd = saved
+    rows, cols = a.shape
+    dpre = torch.empty_like(a) if want_dpre else None
+    da, sums, scratch = torch.empty_like(a), a.new_empty(3, cols), a.new_empty(cols)
+    library().ln_gelu_drop_backward(
+        rows, cols, _ptr(dy), *_dropout_args(dropout), _ptr(a), _ptr(mu), _ptr(rstd),
+        _ptr(g), _ptr(e), _ptr(res), _ptr(dpre), _ptr(da), _ptr(sums[0]), _ptr(sums[1]),
+        _ptr(sums[2]), _ptr(scratch),
+    )  # fmt: skip
+    dg, de, db = sums.unbind(0)
+    return dpre, da, dg, de, db
