@@ -12,9 +12,10 @@ it was before the fast path). The runs log to ``OUT/runs/<method>-<path>/seed<S>
 like any stream; a finished one is not rerun, so a second call only prints the comparison.
 
 Prints, per task, each run's wall time (training, search, pruning and rollout evaluation, as
-``results.json`` records it) and their ratio, then each run's PER, BWT, MEM and anchors, and
-the largest difference between their success matrices. The two paths draw different dropout
-masks, so the results agree within seed noise, not bit for bit.
+``results.json`` records it) and their ratio; where each run's time went (``phase_time_s``:
+training steps, the anchor search, rollout evaluation); then each run's PER, BWT, MEM and
+anchors, and the largest difference between their success matrices. The two paths draw
+different dropout masks, so the results agree within seed noise, not bit for bit.
 """
 
 from __future__ import annotations
@@ -94,6 +95,16 @@ def report(runs: dict) -> None:
         print(f"T{i:02d}   {a / 60:13.2f}  {b / 60:8.2f}  {a / b:14.2f}")
     total_ref, total_fast = sum(ref["wall_time_s"]), sum(fast["wall_time_s"])
     print(f"all   {total_ref / 60:13.2f}  {total_fast / 60:8.2f}  {total_ref / total_fast:14.2f}\n")
+    print("where the time went (minutes over all tasks, share of the stream's wall time)")
+    for path, r in results.items():
+        totals: dict[str, float] = {}
+        for phases in r.get("phase_time_s", []):
+            for name, seconds in (phases or {}).items():
+                totals[name] = totals.get(name, 0.0) + seconds
+        wall = sum(r["wall_time_s"])
+        parts = ", ".join(f"{k} {v / 60:.2f} ({v / wall:.0%})" for k, v in totals.items())
+        print(f"{path:9s}  {parts or 'not recorded'}")
+    print()
     for path, r in results.items():
         anchors = " ".join(f"{k}={v}" for k, v in r.get("anchors", {}).items())
         print(

@@ -116,7 +116,7 @@ class CriticEvaluation(L.Callback):
             return race_candidates(score, cands, batches, probe, self.survivors)
 
         results = {}
-        with eval_mode(module):
+        with module.task_record.timed("search"), eval_mode(module):
             for name in module.subspace_names:
                 if module.transferred(name):
                     continue

@@ -50,10 +50,11 @@ class RolloutEvaluation(L.Callback):
         record: bool = False,
     ) -> RolloutResult:
         task = parse_task(task)
-        if task not in self._evaluators:
-            self._evaluators[task] = RolloutEvaluator(task, self.episodes, self.seed)
-        policy = module_policy(pl_module, task=task_index)
-        return self._evaluators[task].run(policy, progress=self.progress, record=record)
+        with pl_module.task_record.timed("evaluation"):
+            if task not in self._evaluators:
+                self._evaluators[task] = RolloutEvaluator(task, self.episodes, self.seed)
+            policy = module_policy(pl_module, task=task_index)
+            return self._evaluators[task].run(policy, progress=self.progress, record=record)
 
     def _evaluate_current(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         result = self._run(trainer.datamodule.task, pl_module, pl_module.task_index)

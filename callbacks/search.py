@@ -189,7 +189,7 @@ class DirichletEvaluation(L.Callback):
         precision = resolve_precision(self.precision, device)
         generator = torch.Generator().manual_seed(self.seed)
         results = {}
-        with eval_mode(module):
+        with module.task_record.timed("search"), eval_mode(module):
             for name in module.subspace_names:
                 if module.transferred(name):  # zero-shot: nothing was trained to compare
                     continue

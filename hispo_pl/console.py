@@ -75,9 +75,20 @@ def task_header(k: int, n: int, task: str, steps: int) -> str:
     return f"task {task_label(k)}/{n}: {task}, {steps} steps"
 
 
-def task_summary(k: int, n: int, seconds: float, row: list[float], decisions: list[dict]) -> str:
-    """After task ``k``: time, success on it and on the tasks before, each subspace's decision."""
-    line = f"task {task_label(k)}/{n} done in {duration(seconds)}: success {100 * row[k]:.0f} %"
+def task_summary(
+    k: int,
+    n: int,
+    seconds: float,
+    row: list[float],
+    decisions: list[dict],
+    phases: dict[str, float] | None = None,
+) -> str:
+    """After task ``k``: time (and where it went), success on it and on the tasks before, each
+    subspace's decision."""
+    line = f"task {task_label(k)}/{n} done in {duration(seconds)}"
+    if phases:
+        line += " (" + ", ".join(f"{name} {duration(s)}" for name, s in phases.items()) + ")"
+    line += f": success {100 * row[k]:.0f} %"
     if k:
         line += f" (earlier tasks: mean {100 * sum(row[:k]) / k:.0f} %)"
     parts = decision_parts([d for d in decisions if d.get("task") == k])

@@ -101,6 +101,15 @@ class TaskCheckpoint(L.Callback):
         self._pending = state_dict
 
 
+def task_phases(fit_seconds: float, callback_seconds: dict[str, float]) -> dict[str, float]:
+    """Where a task's ``fit`` went: ``training`` (the steps, with Lightning's own work and
+    the callbacks that are not timed) and the timed callback phases (``search``,
+    ``evaluation``), in seconds."""
+    phases = {"training": fit_seconds - sum(callback_seconds.values())}
+    phases.update(sorted(callback_seconds.items()))
+    return phases
+
+
 def fit_interruptibly(trainer: L.Trainer, module: L.LightningModule, datamodule, **kwargs) -> None:
     """``trainer.fit``, where Ctrl-C raises ``KeyboardInterrupt`` again: Lightning turns it into
     ``sys.exit(1)`` after its own shutdown and leaves SIGINT ignored."""
@@ -235,7 +244,7 @@ class ContinualLoop:
     # --- progress on disk -------------------------------------------------------------------
 
     def _load_progress(self) -> dict:
-        fresh = {"stream": self.stream, "rows": [], "wall_time_s": []}
+        fresh = {"stream": self.stream, "rows": [], "wall_time_s": [], "phase_time_s": []}
         if self.fingerprint is not None:
             fresh["fingerprint"] = self.fingerprint
         try:
@@ -349,7 +358,9 @@ class ContinualLoop:
             print(f"[hispo-pl] resuming task {task_label(k)} from {partial.name}")
         datamodule = self.make_datamodule(self.stream[k])
         say(task_header(k, len(self.stream), self.stream[k], trainer.max_steps))
+        fit_start = time.perf_counter()
         fit_interruptibly(trainer, self.module, datamodule, ckpt_path=resume, weights_only=True)
+        phases = task_phases(time.perf_counter() - fit_start, self.module.task_record.seconds)
         row = self.module.task_record.success_row  # RolloutEvaluation's, at the task's end
         if row is None:
             raise RuntimeError(
@@ -365,9 +376,11 @@ class ContinualLoop:
         progress["rows"].append(list(row))
         elapsed = time.perf_counter() - start
         progress["wall_time_s"].append(elapsed)
+        progress.setdefault("phase_time_s", [None] * k).append(phases)
         self._save_progress(progress)
         partial.unlink(missing_ok=True)
-        say(task_summary(k, len(self.stream), elapsed, row, self.run_dir.read_decisions()))
+        decisions = self.run_dir.read_decisions()
+        say(task_summary(k, len(self.stream), elapsed, row, decisions, phases))
         quiet_lightning_notices()  # shown with the first task; the next ones repeat them
 
     def _results(self, progress: dict) -> dict:
@@ -379,6 +392,7 @@ class ContinualLoop:
             "stream": self.stream,
             "R": [[None if math.isnan(v) else v for v in row] for row in R.tolist()],
             "wall_time_s": progress["wall_time_s"],
+            "phase_time_s": progress.get("phase_time_s", [None] * len(progress["rows"])),
         }
         out.update(continual_metrics(R, self.scratch_success))
         stored = module_bytes(self.module)

@@ -8,6 +8,9 @@ the rows of R in ``progress.json``). No torch here.
 
 from __future__ import annotations
 
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,6 +31,8 @@ class TaskRecord:
             of R, read by the loop).
         rollouts: at a stream task's end, that task's scored rollouts with their paths (a
             ``RolloutResult``; the loop draws some of them for TensorBoard).
+        seconds: wall time the callbacks spent so far, per phase (``search``, ``evaluation``):
+            the loop reports it beside the training's.
     """
 
     searches: dict[str, Any] = field(default_factory=dict)
@@ -36,3 +41,14 @@ class TaskRecord:
     episodes: int | None = None
     success_row: list[float] | None = None
     rollouts: Any = None
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    @contextmanager
+    def timed(self, phase: str) -> Iterator[None]:
+        """Add the block's wall time to ``seconds[phase]``."""
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            elapsed = time.perf_counter() - start
+            self.seconds[phase] = self.seconds.get(phase, 0.0) + elapsed

@@ -20,7 +20,7 @@ from hispo_pl.callbacks import (
 )
 from hispo_pl.config import BackboneConfig
 from hispo_pl.data.datamodule import TaskDataModule
-from hispo_pl.loop import ContinualLoop
+from hispo_pl.loop import ContinualLoop, task_phases
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.hispo import SUBSPACES, HiSPO
 from hispo_pl.rundir import RunDir
@@ -94,6 +94,11 @@ def test_results_and_checkpoints_are_written(uninterrupted):
     assert progress["rows"] == results["R"]
     assert len(progress["wall_time_s"]) == 3 and all(t > 0 for t in progress["wall_time_s"])
     assert results["wall_time_s"] == progress["wall_time_s"]
+    # where each task's time went: the steps, the search and the rollouts, within its wall time
+    assert results["phase_time_s"] == progress["phase_time_s"]
+    for phases, wall in zip(results["phase_time_s"], results["wall_time_s"], strict=True):
+        assert set(phases) == {"training", "search", "evaluation"}
+        assert all(t > 0 for t in phases.values()) and sum(phases.values()) <= wall
 
 
 def test_structure_in_results_matches_the_module(uninterrupted):
@@ -194,3 +199,10 @@ def test_a_stream_needs_a_rollout_evaluation(tiny_umaze, tmp_path):
     loop = ContinualLoop(STREAM, HiSPO(**SIZES), make_datamodule, make_trainer, tmp_path)
     with pytest.raises(RuntimeError, match="RolloutEvaluation"):
         loop.run()
+
+
+def test_task_phases_split_a_fit_between_training_and_the_timed_callbacks():
+    phases = task_phases(100.0, {"search": 12.5, "evaluation": 30.0})
+    assert phases == {"training": 57.5, "evaluation": 30.0, "search": 12.5}
+    assert list(phases) == ["training", "evaluation", "search"]
+    assert task_phases(8.0, {}) == {"training": 8.0}

@@ -99,6 +99,10 @@ def test_console_lines():
     assert task_summary(0, 4, 52, [0.97, 0.1, 0.0, 0.0], decisions) == (
         "task 1/4 done in 52s: success 97 %"
     )
+    phases = {"training": 150.2, "evaluation": 61, "search": 30}
+    assert task_summary(0, 4, 247, [0.97, 0.1, 0.0, 0.0], decisions, phases) == (
+        "task 1/4 done in 4m07s (training 2m30s, evaluation 1m01s, search 30s): success 97 %"
+    )
     critic = {"task": 2, "subspace": "policy", "decision": "prune", "rule": "critic", "eps": 0.1}
     critic |= {"w_prev": -0.5, "w_curr": -0.48, "l_prev": 0.3, "l_curr": 0.1}
     assert task_summary(2, 4, 52, [1.0, 1.0, 1.0, 0.0], [critic]).endswith(
