@@ -323,28 +323,31 @@ class SubspaceResidualMLP(nn.Module):
         if not alpha.requires_grad or not all(layer.mixes_as_rows for layer in layers):
             return [t for layer in layers for t in layer.mixed(alpha)]
         check_alpha(alpha, self.n_anchors)
-        lists = [plist for layer in layers for plist in layer._lists()]
+        # each tensor's anchors, read without ParameterList's per-item lookup
+        anchors = [
+            tuple(plist._parameters.values()) for layer in layers for plist in layer._lists()
+        ]
         k = len(alpha)
         if k == 1:  # a weight over one anchor is exactly 1 (and has no free direction)
-            return [plist[0] for plist in lists]
-        frozen = self._frozen_rows(lists)
+            return [a[0] for a in anchors]
+        frozen = self._frozen_rows(anchors)
         if frozen is not None:  # the usual layout of a task: only the newest anchor trains
-            return fast.mix_newest(alpha, frozen, [plist[k - 1] for plist in lists])
-        rows = torch.cat([plist[i].reshape(-1) for i in range(k) for plist in lists])
+            return fast.mix_newest(alpha, frozen, [a[-1] for a in anchors])
+        rows = torch.cat([a[i].reshape(-1) for i in range(k) for a in anchors])
         mixed = alpha @ rows.view(k, -1)
-        shapes = [plist[0].shape for plist in lists]
+        shapes = [a[0].shape for a in anchors]
         parts = mixed.split([math.prod(shape) for shape in shapes])
         return [part.view(shape) for part, shape in zip(parts, shapes, strict=True)]
 
-    def _frozen_rows(self, lists: list[nn.ParameterList]) -> Tensor | None:
+    def _frozen_rows(self, anchors: list[tuple[Tensor, ...]]) -> Tensor | None:
         """The older anchors' parameters as rows [K - 1, D], kept between steps, when every
-        older anchor is frozen and the newest trains (else ``None``).
+        older anchor is frozen and the newest trains (else ``None``). ``anchors``: each
+        tensor's anchors, in the network's order.
 
         Copying every anchor into one matrix each step, and back-propagating a gradient
         into all of it, costs a network's parameters K times over; frozen anchors do not
         change while a task trains, so their rows are built once and rebuilt only when one
         of them is replaced or written to (its tensor or its version counter changes)."""
-        anchors = [tuple(plist._parameters.values()) for plist in lists]  # no per-item lookup
         older = [p for i in range(len(anchors[0]) - 1) for p in (a[i] for a in anchors)]
         if any(p.requires_grad for p in older) or not all(a[-1].requires_grad for a in anchors):
             return None
