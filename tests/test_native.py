@@ -118,3 +118,15 @@ def test_the_library_is_cached_by_source_and_machine(tmp_path):
     assert first is not None and first.parent == tmp_path
     mtime = first.stat().st_mtime_ns
     assert native.build(compiler, tmp_path) == first and first.stat().st_mtime_ns == mtime
+
+
+def test_an_unwritable_cache_falls_back_to_the_temporary_directory(tmp_path, monkeypatch):
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        pytest.skip("no C compiler here")
+    blocked = tmp_path / "file"
+    blocked.write_text("not a directory")
+    monkeypatch.setenv("HISPO_PL_CACHE", str(blocked / "cache"))
+    monkeypatch.setattr(native.tempfile, "gettempdir", lambda: str(tmp_path / "tmp"))
+    path = native.build(compiler)
+    assert path is not None and path.parent.parent == tmp_path / "tmp"

@@ -62,7 +62,8 @@ def _cpu_key() -> str:
 
 def build(compiler: str | None = None, directory: Path | None = None) -> Path | None:
     """Compile ``fused.c`` unless this machine's library is there; its path, or ``None`` when
-    there is no compiler or the build fails (the reason is logged)."""
+    there is no compiler or the build fails (the reason is logged). Without ``directory``, in
+    :func:`cache_dir`, or in the temporary directory where that is not writable."""
     compiler = compiler or os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
     if compiler is None:
         log.info("no C compiler found: the fused kernels are off")
@@ -77,28 +78,37 @@ def build(compiler: str | None = None, directory: Path | None = None) -> Path | 
     key = hashlib.sha256(
         "\0".join([SOURCE.read_text(), *FLAGS, *LIBS, version, _cpu_key()]).encode()
     ).hexdigest()[:16]
-    directory = Path(directory) if directory is not None else cache_dir()
-    path = directory / f"fused-{key}.so"
-    if path.exists():
-        return path
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(dir=directory) as tmp:
-            out = Path(tmp) / path.name
-            done = subprocess.run(
-                [compiler, *FLAGS, str(SOURCE), "-o", str(out), *LIBS],
-                capture_output=True,
-                text=True,
-                timeout=300,
-            )
-            if done.returncode != 0:
-                log.info("building %s failed: the fused kernels are off\n%s", SOURCE, done.stderr)
-                return None
-            os.replace(out, path)  # atomic: a concurrent build of the same key is harmless
-    except (OSError, subprocess.SubprocessError) as err:
-        log.info("building %s failed (%s): the fused kernels are off", SOURCE, err)
-        return None
-    return path
+    fallback = Path(tempfile.gettempdir()) / f"hispo-pl-{os.getuid()}"
+    for where in [Path(directory)] if directory is not None else [cache_dir(), fallback]:
+        path = where / f"fused-{key}.so"
+        try:
+            if path.exists() or _compile(compiler, path):
+                return path
+        except (OSError, subprocess.SubprocessError) as err:
+            log.info("building %s in %s failed (%s)", SOURCE, where, err)
+        else:
+            return None  # the compiler refused the source: another directory will not help
+    log.info("no writable directory for the fused kernels: they are off")
+    return None
+
+
+def _compile(compiler: str, path: Path) -> bool:
+    """Build the library at ``path`` (atomically: a concurrent build of it is harmless);
+    whether the compiler succeeded (its errors are logged)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
+        out = Path(tmp) / path.name
+        done = subprocess.run(
+            [compiler, *FLAGS, str(SOURCE), "-o", str(out), *LIBS],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        if done.returncode != 0:
+            log.info("building %s failed: the fused kernels are off\n%s", SOURCE, done.stderr)
+            return False
+        os.replace(out, path)
+    return True
 
 
 def library() -> ctypes.CDLL | None:
