@@ -7,6 +7,7 @@ import lightning as L
 from typing_extensions import override
 
 from ..evaluation import RolloutEvaluator, RolloutResult, module_policy
+from ..nn import eval_mode
 from ..tasks import Task, parse_task
 
 
@@ -50,7 +51,7 @@ class RolloutEvaluation(L.Callback):
         record: bool = False,
     ) -> RolloutResult:
         task = parse_task(task)
-        with pl_module.task_record.timed("evaluation"):
+        with pl_module.task_record.timed("evaluation"), eval_mode(pl_module):
             if task not in self._evaluators:
                 self._evaluators[task] = RolloutEvaluator(task, self.episodes, self.seed)
             policy = module_policy(pl_module, task=task_index)

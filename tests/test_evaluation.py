@@ -207,3 +207,25 @@ def test_unadapted_expert_fails_on_inverted_actions(expert):
     finally:
         evaluator.close()
     assert result.success < 0.5
+
+
+def test_eval_mode_switches_once_and_restores():
+    from hispo_pl.modules import HBC
+    from hispo_pl.nn import eval_mode
+
+    module = HBC(4, 2).train()
+    with eval_mode(module):
+        assert not any(m.training for m in module.modules())
+        switches = []
+        module.train = lambda mode=True: switches.append(mode)  # a policy call inside
+        with eval_mode(module):
+            pass
+        assert switches == []  # already in eval mode: nothing switched back and forth
+        del module.train
+    assert all(m.training for m in module.modules())
+    module.block = torch.nn.Linear(2, 2)  # a submodule left training switches the whole module
+    module.eval()
+    module.block.train()
+    with eval_mode(module):
+        assert not module.block.training
+    assert not module.training
