@@ -130,3 +130,23 @@ def test_an_unwritable_cache_falls_back_to_the_temporary_directory(tmp_path, mon
     monkeypatch.setattr(native.tempfile, "gettempdir", lambda: str(tmp_path / "tmp"))
     path = native.build(compiler)
     assert path is not None and path.parent.parent == tmp_path / "tmp"
+
+
+@pytest.mark.parametrize("n", [1, 7, 8, 4099])
+def test_random_bytes_are_uniform_and_follow_torchs_seed(n):
+    if native.library() is None:
+        pytest.skip("no C compiler here")
+    torch.manual_seed(5)
+    a = native.random_bytes(torch.empty(n, dtype=torch.uint8))
+    torch.manual_seed(5)
+    b = native.random_bytes(torch.empty(n, dtype=torch.uint8))
+    assert torch.equal(a, b)  # one draw from torch's generator seeds them
+    assert not torch.equal(native.random_bytes(torch.empty(n, dtype=torch.uint8)), a) or n == 1
+    big = native.random_bytes(torch.empty(256 * 4000, dtype=torch.uint8))
+    counts = torch.bincount(big.long(), minlength=256).double()
+    chi2 = ((counts - 4000) ** 2 / 4000).sum().item()
+    assert chi2 < 400  # 255 degrees of freedom: mean 255, sd 22.6
+    # the tail bytes are those of the next word, cut: a prefix of a longer draw
+    torch.manual_seed(5)
+    longer = native.random_bytes(torch.empty(n + 9, dtype=torch.uint8))
+    assert torch.equal(longer[:n], a)

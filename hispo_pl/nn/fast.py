@@ -95,11 +95,14 @@ class DropoutDraw(NamedTuple):
 
 
 def dropout_bytes(count: int, shape: Sequence[int], device: torch.device) -> Tensor:
-    """Uniform random bytes, uint8 ``[count, *shape]``: on the fast path the bytes of one draw
-    of full-range 64-bit words, on the reference path one draw per byte."""
+    """Uniform random bytes, uint8 ``[count, *shape]``: on the fast path from the fused
+    kernels' generator (CPU, where they are built) or the bytes of one draw of full-range
+    64-bit words; on the reference path one draw per byte."""
     full = (count, *shape)
     if not _enabled:
         return torch.empty(full, dtype=torch.uint8, device=device).random_()
+    if torch.device(device).type == "cpu" and native.library() is not None:
+        return native.random_bytes(torch.empty(full, dtype=torch.uint8))
     n = math.prod(full)
     words = torch.empty((n + 7) // 8, dtype=torch.int64, device=device)
     return words.random_(_INT64_MIN, None).view(torch.uint8)[:n].view(full)

@@ -5,8 +5,9 @@
  * layout streams run in.
  *
  * GELU is the exact one, x * Phi(x); erff and expf are declared as SIMD functions so that the
- * row loops vectorise with glibc's libmvec. */
+ * row loops vectorise with glibc's libmvec. The dropout bytes come from random_bytes. */
 #include <stddef.h>
+#include <stdint.h>
 #include <string.h>
 
 float erff(float) __attribute__((simd("notinbranch"), const, nothrow));
@@ -94,5 +95,27 @@ void ln_gelu_drop_backward(long rows, long cols, const float *dy, const unsigned
             dai[j] = d;
             db[j] += d;
         }
+    }
+}
+
+/* n uniform random bytes: SplitMix64's words (its finaliser on seed + (i + 1) * golden gamma)
+ * laid out little by little, the last word cut to fit. A counter, not a chain, so the loop
+ * vectorises. */
+static uint64_t splitmix64(uint64_t seed, uint64_t i) {
+    uint64_t z = seed + (i + 1) * 0x9E3779B97F4A7C15ull;
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    return z ^ (z >> 31);
+}
+
+void random_bytes(long n, uint64_t seed, unsigned char *out) {
+    const long words = n / 8;
+    for (long i = 0; i < words; i++) {
+        const uint64_t z = splitmix64(seed, (uint64_t)i);
+        memcpy(out + 8 * i, &z, 8);
+    }
+    if (n % 8) {
+        const uint64_t z = splitmix64(seed, (uint64_t)words);
+        memcpy(out + 8 * words, &z, (size_t)(n % 8));
     }
 }

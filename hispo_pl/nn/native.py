@@ -1,5 +1,5 @@
-"""The fused LayerNorm → GELU → dropout kernels of ``fused.c``, built with the machine's C
-compiler on first use and called through ctypes.
+"""The fused LayerNorm → GELU → dropout kernels of ``fused.c`` and its random bytes for
+dropout, built with the machine's C compiler on first use and called through ctypes.
 
 Torch runs LayerNorm, GELU, the mask's product and their backwards as separate kernels, each a
 pass over a ``[batch, hidden]`` activation, plus one more for a linear layer's bias gradient;
@@ -37,6 +37,7 @@ _P, _LONG, _INT, _FLOAT = ctypes.c_void_p, ctypes.c_long, ctypes.c_int, ctypes.c
 _SIGNATURES = {
     "ln_gelu_drop_forward": [_LONG, _LONG, *[_P] * 5, _INT, _FLOAT, _FLOAT, *[_P] * 3],
     "ln_gelu_drop_backward": [_LONG, _LONG, _P, _P, _INT, _FLOAT, *[_P] * 12],
+    "random_bytes": [_LONG, ctypes.c_uint64, _P],
 }
 _state: dict[str, ctypes.CDLL | None] = {}
 
@@ -133,6 +134,15 @@ def _load() -> ctypes.CDLL | None:
         getattr(lib, name).argtypes = argtypes
         getattr(lib, name).restype = None
     return lib
+
+
+def random_bytes(out: Tensor) -> Tensor:
+    """Fill ``out`` (uint8, contiguous, on the CPU) with uniform random bytes, seeded by one
+    64-bit draw from torch's default generator (``torch.manual_seed`` makes them repeat);
+    many times cheaper than ``random_`` on CPU."""
+    seed = torch.empty((), dtype=torch.int64).random_(-(2**63), None).item() % 2**64
+    library().random_bytes(out.numel(), seed, _ptr(out))
+    return out
 
 
 def usable(*tensors: Tensor | None) -> bool:
