@@ -127,6 +127,8 @@ def _network_kernels(h: int, batch: int) -> list:
     keep = torch.randint(0, 256, (batch, h), dtype=torch.uint8)
     draw = [lambda: words.random_(-(2**63), None)]
     if native.usable(z, keep):
+        noise = torch.empty(3 * batch * h, dtype=torch.uint8)
+        draw = [lambda: native.random_bytes(noise)]
         dropout = (keep, 26, 1.1)
         _, mu, rstd = native.ln_gelu_drop_forward(z, gamma, beta, 1e-5, dropout)
         return [
