@@ -123,12 +123,14 @@ def _network_kernels(h: int, batch: int) -> list:
     aten = torch.ops.aten
     z, grad = torch.randn(batch, h), torch.randn(batch, h)
     gamma, beta = torch.ones(h), torch.zeros(h)
-    words = torch.empty(3 * batch * h // 8, dtype=torch.int64)
     keep = torch.randint(0, 256, (batch, h), dtype=torch.uint8)
-    draw = [lambda: words.random_(-(2**63), None)]
-    if native.usable(z, keep):
+    if native.library() is not None:  # as fast.dropout_bytes draws
         noise = torch.empty(3 * batch * h, dtype=torch.uint8)
         draw = [lambda: native.random_bytes(noise)]
+    else:
+        words = torch.empty(3 * batch * h // 8, dtype=torch.int64)
+        draw = [lambda: words.random_(-(2**63), None)]
+    if native.usable(z, keep):
         dropout = (keep, 26, 1.1)
         _, mu, rstd = native.ln_gelu_drop_forward(z, gamma, beta, 1e-5, dropout)
         return [
