@@ -54,6 +54,9 @@ def test_fit_trains_evaluates_logs_and_prints_success(tiny_umaze, tmp_path, caps
     out = capsys.readouterr().out
     assert "[hispo-pl] HBC on pointmaze-umaze-N[6]: success" in out
     assert "over 4 episodes" in out and "after 40 steps (" in out and "s with evaluations)" in out
+    # not a terminal: progress as a line every tenth of the steps
+    assert "[hispo-pl] pointmaze-umaze-N[6] step 4/40 (10 %), loss " in out
+    assert "[hispo-pl] pointmaze-umaze-N[6] step 40/40 (100 %), loss " in out
 
     events = list(tmp_path.rglob("events.out.tfevents.*"))
     assert events, "no TensorBoard event file written"
