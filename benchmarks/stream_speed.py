@@ -3,6 +3,7 @@ and seed, the two runs side by side (one thread each), through ``hispo-pl fit`` 
 
     python benchmarks/stream_speed.py [--stream pointmaze-1] [--method hispo] [--seed 0]
         [--steps-per-task N] [--out results/stream-speed] [--config-dir configs]
+    python benchmarks/stream_speed.py --report-only docs/results/stream-speed
 
 Each run is the ``fit`` command ``hispo-pl benchmark`` would launch for (stream, method, seed),
 run in a child process of this script, the reference one inside
@@ -126,7 +127,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps-per-task", type=int, default=None, help="default: the config's")
     parser.add_argument("--out", default="results/stream-speed")
     parser.add_argument("--config-dir", default="configs")
+    parser.add_argument(
+        "--report-only",
+        metavar="DIR",
+        help="print the comparison from exported runs (DIR/<method>-<path>/seed<S>, as "
+        "hispo-pl benchmark --export writes them, e.g. docs/results/stream-speed) and run nothing",
+    )
     args = parser.parse_args(argv)
+    if args.report_only:
+        base = Path(args.report_only) / "{}" / f"seed{args.seed}"
+        report({path: (Path(str(base).format(f"{args.method}-{path}")), []) for path in PATHS})
+        return 0
     runs = planned(args)
     run_both(runs)
     report(runs)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import json
 import sys
 from pathlib import Path
 
@@ -51,3 +52,25 @@ def test_reference_child_runs_fit_on_the_reference_path(monkeypatch):
     assert script.main(["--child", "fast", "--", "fit"]) == 0
     assert seen == [(["fit", "--config", "x.yaml"], False), (["fit"], True)]
     assert fast.enabled()
+
+
+def test_report_only_reads_exported_runs(tmp_path, capsys):
+    for path, minutes in (("reference", 13.0), ("fast", 10.0)):
+        run = tmp_path / f"hispo-{path}" / "seed0"
+        run.mkdir(parents=True)
+        results = {
+            "R": [[1.0, None], [1.0, 0.9 if path == "fast" else 0.95]],
+            "PER": 0.95,
+            "BWT": 0.0,
+            "MEM": 2.0,
+            "anchors": {"high": 1, "low": 2},
+            "wall_time_s": [60 * minutes / 2] * 2,
+            "phase_time_s": [{"training": 60 * minutes / 2 - 6, "evaluation": 6}] * 2,
+        }
+        (run / "results.json").write_text(json.dumps(results))
+    assert script.main(["--report-only", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    (total,) = [line.split() for line in out.splitlines() if line.startswith("all ")]
+    assert total == ["all", "13.00", "10.00", "1.30"]
+    assert "fast       training 9.80 (98%), evaluation 0.20 (2%)" in out
+    assert "largest success difference between the two R matrices: 5.0 points" in out
