@@ -150,3 +150,17 @@ def test_random_bytes_are_uniform_and_follow_torchs_seed(n):
     torch.manual_seed(5)
     longer = native.random_bytes(torch.empty(n + 9, dtype=torch.uint8))
     assert torch.equal(longer[:n], a)
+
+
+def test_cache_dir_without_a_home(monkeypatch, tmp_path):
+    monkeypatch.delenv("HISPO_PL_CACHE", raising=False)
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+    monkeypatch.setattr(native.tempfile, "gettempdir", lambda: str(tmp_path))
+
+    def no_home():
+        raise RuntimeError("Could not determine home directory.")
+
+    monkeypatch.setattr(native.Path, "home", staticmethod(no_home))
+    assert native.cache_dir().parent == tmp_path
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert native.cache_dir() == tmp_path / "xdg" / "hispo-pl"

@@ -44,10 +44,13 @@ _state: dict[str, ctypes.CDLL | None] = {}
 
 def cache_dir() -> Path:
     """Where built libraries go: ``$HISPO_PL_CACHE``, else ``$XDG_CACHE_HOME/hispo-pl``, else
-    ``~/.cache/hispo-pl``."""
+    ``~/.cache/hispo-pl`` (the temporary directory without a home)."""
     if os.environ.get("HISPO_PL_CACHE"):
         return Path(os.environ["HISPO_PL_CACHE"])
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    try:
+        base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    except RuntimeError:  # no home directory to be found
+        return Path(tempfile.gettempdir()) / f"hispo-pl-{os.getuid()}"
     return Path(base) / "hispo-pl"
 
 
