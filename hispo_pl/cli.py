@@ -100,12 +100,12 @@ class HispoCLI(LightningCLI):
     def fit(self, model, datamodule, **kwargs) -> None:
         """One task: ``trainer.fit``. A stream: the ContinualLoop, a fresh Trainer per task."""
         if datamodule.stream is None:
-            from .console import StepLines, interactive
+            from .console import step_lines
             from .loop import fit_interruptibly
 
-            steps = self.trainer.max_steps or 0
-            if steps > 0 and not interactive():  # a log or a pipe: progress as lines
-                self.trainer.callbacks.append(StepLines(str(datamodule.task), max(1, steps // 10)))
+            lines = step_lines(str(datamodule.task), self.trainer.max_steps)
+            if lines is not None:
+                self.trainer.callbacks.append(lines)
             start = time.perf_counter()
             fit_interruptibly(self.trainer, model, datamodule, **kwargs)
             self.fit_seconds = time.perf_counter() - start

@@ -53,15 +53,16 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
     def make_trainer(k: int):
         """Task ``k``'s Trainer: the model summary once per stream, and progress as lines when
         the output is not a terminal."""
-        from .console import StepLines, TaskProgressBar, interactive
+        from .console import TaskProgressBar, step_lines
 
         extra: dict = {} if first_trainer[0] else {"enable_model_summary": False}
         first_trainer[0] = False
         task_callbacks = list(callbacks)
         max_steps = config["trainer"].get("max_steps") or 0
         label = f"task {task_label(k)}/{len(datamodule.stream)}"
-        if max_steps > 0 and not interactive():
-            task_callbacks.append(StepLines(label, every=max(1, max_steps // 10)))
+        lines = step_lines(label, max_steps)
+        if lines is not None:
+            task_callbacks.append(lines)
             extra["enable_progress_bar"] = False
         elif max_steps > 0 and config["trainer"].get("enable_progress_bar") is not False:
             task_callbacks.append(TaskProgressBar(label))

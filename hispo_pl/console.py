@@ -121,6 +121,14 @@ class StepLines(L.Callback):
         )
 
 
+def step_lines(label: str, max_steps: int | None) -> StepLines | None:
+    """Progress as lines, one every tenth of the steps, where the output is not a terminal
+    (a log or a pipe) and the run has a step budget; else ``None`` (a bar can redraw)."""
+    if not max_steps or max_steps <= 0 or interactive():
+        return None
+    return StepLines(label, every=max(1, max_steps // 10))
+
+
 class TaskProgressBar(TQDMProgressBar):
     """One bar per task over its gradient steps (Lightning's own restarts at every epoch of
     ``steps_per_epoch`` batches), labelled with the task: ``task 2/4: 37%|███ | 2220/6000``."""

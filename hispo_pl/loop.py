@@ -274,6 +274,8 @@ class ContinualLoop:
             )
         if self.fingerprint is not None and stored is None:
             progress["fingerprint"] = self.fingerprint  # a run from before fingerprints
+        # a run from before phase times: its finished tasks have none
+        progress.setdefault("phase_time_s", [None] * len(progress["rows"]))
         return progress
 
     def _save_progress(self, progress: dict) -> None:
@@ -376,7 +378,7 @@ class ContinualLoop:
         progress["rows"].append(list(row))
         elapsed = time.perf_counter() - start
         progress["wall_time_s"].append(elapsed)
-        progress.setdefault("phase_time_s", [None] * k).append(phases)
+        progress["phase_time_s"].append(phases)
         self._save_progress(progress)
         partial.unlink(missing_ok=True)
         decisions = self.run_dir.read_decisions()
@@ -392,7 +394,7 @@ class ContinualLoop:
             "stream": self.stream,
             "R": [[None if math.isnan(v) else v for v in row] for row in R.tolist()],
             "wall_time_s": progress["wall_time_s"],
-            "phase_time_s": progress.get("phase_time_s", [None] * len(progress["rows"])),
+            "phase_time_s": progress["phase_time_s"],
         }
         out.update(continual_metrics(R, self.scratch_success))
         stored = module_bytes(self.module)

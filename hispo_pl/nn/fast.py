@@ -7,9 +7,9 @@ network (Linear→LN→GELU→dropout, the residual block, GELU→dropout, the h
 bookkeeping. Each layer's LayerNorm → GELU → dropout runs as one fused kernel per direction
 (:mod:`~hispo_pl.nn.native`) where it is built and the process has one thread, else as
 aten's kernels (``native_layer_norm``, ``gelu`` and their backwards, in place where a buffer
-is fresh). Dropout comes from random 64-bit words viewed as bytes (one draw for all of a
-network's masks), which keeps :class:`~hispo_pl.nn.mlp.FastDropout`'s distribution (keep a
-unit iff a uniform byte ≥ ``threshold``).
+is fresh). Dropout is one draw of random bytes for all of a network's masks
+(:func:`dropout_bytes`), which keeps :class:`~hispo_pl.nn.mlp.FastDropout`'s distribution
+(keep a unit iff a uniform byte ≥ ``threshold``); the fused kernels read the bytes directly.
 
 Networks take this path while training with gradients enabled; evaluation, ``torch.func``
 transforms (which run in eval mode here) and batched subspace weights keep the plain modules.
