@@ -42,7 +42,7 @@ def child(path: str, fit_args: list[str]) -> int:
 
 def planned(args) -> dict:
     """The two runs: path → (run dir, fit arguments)."""
-    from hispo_pl.benchmark.plan import fit_argv, stream_config_path
+    from hispo_pl.benchmark.plan import RUNS_DIR, fit_argv, stream_config_path
 
     config_dir = Path(args.config_dir)
     stream_config = stream_config_path(args.stream, config_dir)
@@ -52,7 +52,7 @@ def planned(args) -> dict:
     for path in PATHS:
         name = f"{args.method}-{path}"
         argv = fit_argv(stream_config, method_config, name, args.seed, out, 1, args.steps_per_task)
-        runs[path] = (out / "runs" / name / f"seed{args.seed}", argv)
+        runs[path] = (out / RUNS_DIR / name / f"seed{args.seed}", argv)  # where fit_argv logs
     return runs
 
 
