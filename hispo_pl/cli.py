@@ -32,10 +32,12 @@ from .cli_stream import run_stream_from_cli
 from .commands import data_main, evaluate_main, flip_note, render_main, set_num_threads
 from .console import print_stream_results
 from .data.datamodule import TaskDataModule
-from .errors import Interrupted, UserError
+from .errors import ConfigError, Interrupted, UserError
 from .modules.hbc import GoalConditionedBC
+from .presets import apply_preset
 from .run_checks import METHOD_KNOBS, apply_method_knobs, validate_config
 from .rundir import RunDir
+from .tasks import unseen_variant_tasks, unseen_variants_message
 
 
 class HispoCLI(LightningCLI):
@@ -61,6 +63,13 @@ class HispoCLI(LightningCLI):
             default=1000,
             help="streams: save the task in progress every N steps (task_XX.partial.ckpt); a "
             "rerun resumes it from there (0: only finished tasks are kept)",
+        )
+        parser.add_argument(
+            "--preset",
+            type=str | None,
+            default=None,
+            help="paper: the paper's hyperparameters, inputs and HiSPO rules over the configs' "
+            "(docs/method.md lists both); the budget stays the stream config's",
         )
         for flag, (text, _) in METHOD_KNOBS.items():
             kind = float if flag.startswith("eps") else int
@@ -88,6 +97,7 @@ class HispoCLI(LightningCLI):
 
     def before_instantiate_classes(self) -> None:
         config = self.config.get(self.subcommand, self.config)
+        apply_preset(config, config.get("preset"))
         apply_method_knobs(config)
         validate_config(config.as_dict())
         set_num_threads(config.get("num_threads", 0))
@@ -99,6 +109,7 @@ class HispoCLI(LightningCLI):
 
     def fit(self, model, datamodule, **kwargs) -> None:
         """One task: ``trainer.fit``. A stream: the ContinualLoop, a fresh Trainer per task."""
+        refuse_unseen_variants(model, datamodule)
         if datamodule.stream is None:
             from .console import step_lines
             from .loop import fit_interruptibly
@@ -129,6 +140,17 @@ class HispoCLI(LightningCLI):
         if self.trainer.log_dir:
             write_task_result(self.trainer.log_dir, self.model, task, self.fit_seconds)
             print(f"[hispo-pl] TensorBoard logs: {self.trainer.log_dir}")
+
+
+def refuse_unseen_variants(model, datamodule: TaskDataModule) -> None:
+    """Refuse a run whose observation-variant tasks no policy of the model would tell from
+    their N task (the datamodule refuses inputs that no level reads; here the flat policy,
+    which reads only the high policy's inputs)."""
+    tasks = datamodule.tasks or [datamodule.task]
+    unseen = unseen_variant_tasks(tasks, model.backbone_config.reads_observation)
+    if unseen:
+        inputs = f"with {datamodule.inputs_summary} and a flat policy (it reads the high inputs),"
+        raise ConfigError(unseen_variants_message(unseen, inputs))
 
 
 def write_task_result(log_dir: str, model, task, seconds: float) -> None:

@@ -156,7 +156,7 @@ def other_task_note(ckpt: str, as_task: int, tasks: list) -> str | None:
 def evaluate_main(argv: list[str]) -> int:
     """``hispo-pl evaluate``: any checkpoint on any task, seen or not."""
     from .evaluation import RolloutEvaluator, module_policy
-    from .tasks import parse_task
+    from .tasks import parse_task, unseen_variant_tasks
 
     parser = argparse.ArgumentParser(
         prog="hispo-pl evaluate", description="Roll out a checkpoint's policy on a task"
@@ -179,6 +179,12 @@ def evaluate_main(argv: list[str]) -> int:
     note = other_task_note(args.ckpt, as_task, [task])
     if note and not args.json:
         print(note)
+    if unseen_variant_tasks([task], module.backbone_config.reads_observation):
+        print(
+            f"[hispo-pl] note: this policy reads no observation, so {task} looks to it exactly "
+            f"like {task.family}-{task.maze}-N",
+            file=sys.stderr,
+        )
     evaluator = RolloutEvaluator(task, args.episodes, args.seed)
     result = evaluator.run(module_policy(module, task=as_task), progress=not args.json)
     out = {

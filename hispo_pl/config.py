@@ -34,10 +34,11 @@ class BackboneConfig:
         low_log_std: the same for the low policy's action (continuous entries).
         low_obs: whether the low policy sees the observation (``False``: only the features
             of the relative subgoal). Linked from ``--data.low_inputs``.
-        low_velocity: whether the low policy sees the goal-space velocity. Linked from
+        low_velocity: whether the low policy sees the velocity of the sensed position. Linked from
             ``--data.low_inputs``.
         high_obs: whether the high (and flat) policy sees the observation; ``False``: the
-            goal-space velocity in its place, so no observation variant reaches it. Linked
+            velocity of the sensed position in its place (an observation variant then reaches
+            it only where the family senses its position through the observation). Linked
             from ``--data.high_inputs``.
         binary_actions: leading action entries that are buttons (Bernoulli). Linked from the
             data.
@@ -57,6 +58,12 @@ class BackboneConfig:
     def __post_init__(self) -> None:
         if self.kind not in ("hbc", "bc"):
             raise ValueError(f"unknown backbone kind {self.kind!r}; expected 'hbc' or 'bc'")
+
+    @property
+    def reads_observation(self) -> bool:
+        """Whether any of its policies reads the observation (the flat one reads the high
+        policy's inputs): else no observation variant (IO, PO) reaches it."""
+        return self.high_obs or (self.kind == "hbc" and self.low_obs)
 
     @classmethod
     def of(cls, value: BackboneConfig | Mapping | None) -> BackboneConfig:

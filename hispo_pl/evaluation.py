@@ -13,12 +13,13 @@ from .data.sampler import position_velocity
 from .envs import agent_flipped, make_env
 from .envs.family import family_behaviour
 from .nn import eval_mode
-from .tasks import Task, parse_task
+from .tasks import Task, agent_position, parse_task
 
 PolicyFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
 """(observation [B, obs], position [B, 2], goal [B, 2], velocity [B, 2]) -> action [B, act],
-deterministic. ``velocity`` is the last position step over the family's step time (0 on an
-episode's first step), as :class:`~hispo_pl.data.sampler.HERSampler` computes it from data."""
+deterministic. ``position`` is as the agent senses it (:func:`~hispo_pl.tasks.agent_position`)
+and ``velocity`` its last step over the family's step time (0 on an episode's first step), as
+:class:`~hispo_pl.data.sampler.HERSampler` computes them from data."""
 
 
 @dataclass(frozen=True)
@@ -77,6 +78,12 @@ class RolloutEvaluator:
         flips = np.zeros(self.episodes, dtype=bool)
         lengths = np.zeros(self.episodes, dtype=np.int64)
         paths: list[list[np.ndarray]] = [[] for _ in range(self.episodes)]
+        sensed: list[list[np.ndarray]] = [[] for _ in range(self.episodes)]  # agent_position
+
+        def observe(k: int, o: dict) -> None:
+            paths[k].append(o["achieved_goal"])
+            sensed[k].append(agent_position(self.task, o["observation"], o["achieved_goal"]))
+
         waiting = iter(range(self.episodes))
         running: list[int | None] = [None] * len(self.envs)  # episode of each env
         obs: list[dict] = [{}] * len(self.envs)
@@ -87,7 +94,7 @@ class RolloutEvaluator:
             if k is not None:
                 options = self.options[k]
                 obs[slot] = self.envs[slot].reset(seed=self.seed * 100_003 + k, options=options)[0]
-                paths[k].append(obs[slot]["achieved_goal"])
+                observe(k, obs[slot])
 
         for slot in range(len(self.envs)):
             start_next(slot)
@@ -95,22 +102,19 @@ class RolloutEvaluator:
             slots = [s for s, k in enumerate(running) if k is not None]
             batch = {
                 key: torch.as_tensor(np.stack([obs[s][key] for s in slots]), dtype=torch.float32)
-                for key in ("observation", "achieved_goal", "desired_goal")
+                for key in ("observation", "desired_goal")
             }
+            here = [sensed[running[s]] for s in slots]
+            position = torch.as_tensor(np.stack([p[-1] for p in here]), dtype=torch.float32)
             previous = torch.as_tensor(
-                np.stack(
-                    [paths[running[s]][-2 if len(paths[running[s]]) > 1 else -1] for s in slots]
-                ),
-                dtype=torch.float32,
+                np.stack([p[-2 if len(p) > 1 else -1] for p in here]), dtype=torch.float32
             )
-            velocity = position_velocity(batch["achieved_goal"], previous, self.step_seconds)
-            actions = policy(
-                batch["observation"], batch["achieved_goal"], batch["desired_goal"], velocity
-            )
+            velocity = position_velocity(position, previous, self.step_seconds)
+            actions = policy(batch["observation"], position, batch["desired_goal"], velocity)
             for a, s in zip(actions.detach().cpu().numpy(), slots, strict=True):
                 k = running[s]
                 obs[s], _, terminated, truncated, info = self.envs[s].step(a)
-                paths[k].append(obs[s]["achieved_goal"])
+                observe(k, obs[s])
                 lengths[k] += 1
                 if info.get("success", False):
                     successes[k] = True

@@ -45,6 +45,9 @@ HIGH_INPUTS: dict[str, bool] = {  # name -> high_obs of the backbone
     "observation": True,  # [features(goal − pos), observation, pos, goal] (the authors')
     "goal": False,  # [features(goal − pos), goal-space velocity, pos, goal]: goal space only
 }
+# variants that change only what the agent senses: a task of one of them is a new task only
+# to a policy that reads the observation (positions, goals and success stay in maze coordinates)
+OBSERVATION_VARIANTS: tuple[str, ...] = ("IO", "PO")
 
 
 @dataclass(frozen=True)
@@ -76,6 +79,10 @@ class Family:
     # anchor carries over at a higher loss on the continuous-control mazes
     # (docs/studies/pruning.md); the game mazes' own is in _game_family
     pruning_eps: dict[str, float] = field(default_factory=lambda: {"high": 0.1, "low": 0.6})
+    # whether the observation holds the position (its first goal_dim features): the policies
+    # then read the position where the observation holds it, so that an observation variant
+    # moves it too; else the position is a channel apart, in maze coordinates in every variant
+    position_in_observation: bool = False
     # how a new anchor starts when the method config leaves ``anchor_init`` unset: from the
     # mean of the others (a new task builds on the old ones), or ``random`` (the game mazes,
     # where starting from an earlier maze's anchors costs the new task, docs/studies/new-anchor.md)
@@ -114,8 +121,11 @@ def _game_family(
 FAMILIES: dict[str, Family] = {
     "pointmaze": Family(
         name="pointmaze",
-        low_inputs="goal",  # a point mass needs no proprioception: its low policy sees goal space
-        high_inputs="goal",  # its observation is position and velocity: goal space says it all
+        # a point mass needs no more than its sensed position and velocity below; the high
+        # policy reads the observation (docs/studies/inputs.md)
+        low_inputs="goal",
+        high_inputs="observation",
+        position_in_observation=True,  # its observation is x, y, vx, vy
         expert="hispo_pl.envs.experts:PointMazeExpert",
         behaviour="hispo_pl.envs.robotics:RoboticsMazes",
         env_id="PointMaze_{}-v3",
@@ -288,6 +298,40 @@ def parse_stream(stream: str | list[str]) -> list[Task]:
             )
         stream = STREAMS[stream]
     return [parse_task(s) for s in stream]
+
+
+def unseen_variant_tasks(tasks: list[Task], reads_observation: bool) -> list[Task]:
+    """The tasks whose variant changes only the observation (IO, PO) when no policy reads the
+    observation and the family's position is a channel apart: each would look to every policy
+    exactly like the same maze's N task."""
+    if reads_observation:
+        return []
+    return list(
+        dict.fromkeys(
+            t
+            for t in tasks
+            if t.variant in OBSERVATION_VARIANTS and not t.env_family.position_in_observation
+        )
+    )
+
+
+def agent_position(task: Task, observation, position):
+    """The position as the agent senses it, given the observation in ``task``'s variant and
+    the position in maze coordinates (last axis; numpy or torch): where the family's
+    observation holds the position, its first ``goal_dim`` features, so an observation variant
+    moves it; else ``position`` itself. Goals and the success test stay in maze coordinates."""
+    family = task.env_family
+    return observation[..., : family.goal_dim] if family.position_in_observation else position
+
+
+def unseen_variants_message(tasks: list[Task], inputs: str) -> str:
+    """One line: which tasks a configuration leaves unseen, why, and what to change."""
+    specs = ", ".join(t.spec for t in tasks)
+    return (
+        f"{specs}: {inputs} no policy reads the observation, so an observation variant "
+        "would look exactly like its N task; set --data.low_inputs observation or "
+        "--data.high_inputs observation (or leave both at family)"
+    )
 
 
 # --- variants: the same pure transforms serve the env wrapper and the dataset -------------

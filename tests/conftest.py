@@ -1,4 +1,5 @@
-"""Shared fixtures: an isolated Minari store and one tiny generated PointMaze dataset."""
+"""Shared fixtures: an isolated Minari store, one torch thread by default, one tiny generated
+PointMaze dataset and one finished tiny stream."""
 
 from __future__ import annotations
 
@@ -33,10 +34,35 @@ def tiny_umaze(minari_home):
     return load_episodes(f"pointmaze-umaze-N[{TINY_EPISODES}]", generate_if_missing=False)
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _one_thread_session():
+    """One torch thread for the whole session, set before any fixture builds a model: tiny
+    networks on a 2-core machine run several times (up to ~100x) faster without intra-op
+    threads competing for the cores. A test that wants more threads sets them itself
+    (``torch.set_num_threads``, ``--num_threads``); :func:`_restore_threads` undoes it."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture(autouse=True)
+def _restore_threads(_one_thread_session):
+    """After each test, the thread count it started with (one), whatever the test set: a
+    ``hispo-pl fit --num_threads 2`` inside a test leaves torch at two threads otherwise."""
+    import torch
+
+    before = torch.get_num_threads()
+    yield
+    if torch.get_num_threads() != before:
+        torch.set_num_threads(before)
+
+
 @pytest.fixture(scope="module")
-def one_thread():
-    """One torch thread for a module's tests: tiny networks on a busy 2-core machine run
-    several times faster without intra-op threads competing for the cores."""
+def one_thread(_one_thread_session):
+    """The session's default made explicit: a module that names it still runs at one thread."""
     import torch
 
     before = torch.get_num_threads()

@@ -98,6 +98,20 @@ class DirlessLogger(L.pytorch.loggers.Logger):
 
 # --- a tiny HiSPO and its batches (test_hispo*.py) ---------------------------------------------
 
+# Float32 results that went through other kernels than those they are compared with (a fixture
+# recorded on another machine, a batched matmul of another batch count, another thread count)
+# agree to a few units in the last place, not bit for bit: blocked and vectorised GEMMs and FMA
+# change the order of each dot product's sum, and reordering a float32 sum of n terms of size s
+# moves it by about sqrt(n)·u·s (at most n·u·s), u = 2^-24 ≈ 6e-8. In the tiny test networks
+# (widths ≤ 16, a handful of layers, activations and outputs of order 1) that measured 6e-8 to
+# 3e-7 on another x86-64 CPU than the one that recorded the fixtures. The error follows the
+# size of the intermediate activations, not of the compared value (an action may be 0.002),
+# hence an absolute bound next to the relative one: 3e-6, about 50 ulps at 1, leaves a tenfold
+# margin and stays orders of magnitude below what a wrongly loaded weight or a wrong mixing
+# weight changes.
+FLOAT32_REORDERED = {"rtol": 3e-6, "atol": 3e-6}
+
+
 HISPO_SIZES = {
     "obs_dim": 4,
     "action_dim": 2,

@@ -16,8 +16,6 @@ from hispo_pl.modules import GoalConditionedBC, NetworkPerTask
 ROOT = Path(__file__).resolve().parents[1]
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"]
 
-pytestmark = pytest.mark.usefixtures("one_thread")
-
 
 def _module(init="fresh", keep="all", backbone="hbc") -> NetworkPerTask:
     config = BackboneConfig(kind=backbone, high_hidden=8, low_hidden=16)
@@ -92,6 +90,8 @@ def test_each_task_acts_with_its_own_network_when_all_are_kept():
 
 
 def test_checkpoint_alone_restores_every_tasks_policy(tmp_path):
+    """Bit for bit, in one process: the restored module runs the saved weights through the same
+    kernels on the same shapes as the original."""
     import lightning as L
 
     m = _module("fresh", "all")

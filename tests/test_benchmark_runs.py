@@ -113,6 +113,7 @@ def test_benchmark_local_end_to_end_and_skip(tiny_umaze, tmp_path, capsys):
     assert (out / "runs/scn/seed0/results.json").exists()
 
 
+@pytest.mark.slow  # the local end-to-end above runs the same plan by default; Ray adds ~20 s
 def test_benchmark_ray_end_to_end(tiny_umaze, tmp_path, capsys):
     pytest.importorskip("ray")
     configs = benchmark_config_dir(tmp_path, ["hispo"])

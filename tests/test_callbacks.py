@@ -31,8 +31,6 @@ from hispo_pl.tasks import parse_task
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-IA[3]", "pointmaze-umaze-PO[3]"]
 SIZES = {"obs_dim": 4, "action_dim": 2, "backbone": BackboneConfig(high_hidden=8, low_hidden=16)}
 
-pytestmark = pytest.mark.usefixtures("one_thread")
-
 
 class RecordOptimizer(L.Callback):
     """Remembers which parameters the optimiser of the fit received."""

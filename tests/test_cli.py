@@ -127,14 +127,38 @@ def test_the_demo_is_a_two_task_hispo_stream(capsys):
     assert printed["model"]["class_path"] == "hispo_pl.modules.HiSPO"
 
 
-@pytest.mark.parametrize("stream", STREAM_CONFIGS, ids=lambda p: p.stem)
-@pytest.mark.parametrize("method", METHOD_CONFIGS, ids=lambda p: p.stem)
+def _stream_method_pairs():
+    """Every stream config with one method and every method config with one stream run by
+    default (what differs: each file's own keys, each method's knobs on a stream); the rest of
+    the matrix, every other pair, is ``slow``."""
+    for stream in STREAM_CONFIGS:
+        for method in METHOD_CONFIGS:
+            default = stream == PAIR_STREAM or method == PAIR_METHOD
+            marks = () if default else (pytest.mark.slow,)
+            yield pytest.param(stream, method, id=f"{method.stem}-{stream.stem}", marks=marks)
+
+
+PAIR_STREAM = ROOT / "configs/streams/pointmaze-1.yaml"
+PAIR_METHOD = ROOT / "configs/methods/hispo.yaml"
+
+
+@pytest.mark.parametrize(("stream", "method"), list(_stream_method_pairs()))
 def test_every_stream_and_method_config_pair_parses(stream, method, capsys):
     with pytest.raises(SystemExit) as done:
         main(["fit", "--config", str(stream), "--config", str(method), "--print_config"])
     assert done.value.code == 0
     printed = capsys.readouterr().out
-    assert f"stream: {stream.stem}" in printed and "class_path: hispo_pl.modules." in printed
+    model = yaml.safe_load(method.read_text())["model"]["class_path"]
+    assert f"stream: {stream.stem}" in printed and f"class_path: {model}" in printed
+
+
+def test_the_default_pairs_cover_every_stream_and_method_config():
+    default = [
+        p.values for p in _stream_method_pairs() if not any(m.name == "slow" for m in p.marks)
+    ]
+    assert {s for s, _ in default} == set(STREAM_CONFIGS) and PAIR_STREAM in STREAM_CONFIGS
+    assert {m for _, m in default} == set(METHOD_CONFIGS) and PAIR_METHOD in METHOD_CONFIGS
+    assert len(default) == len(STREAM_CONFIGS) + len(METHOD_CONFIGS) - 1
 
 
 def test_dotted_override_shows_in_printed_config(capsys):

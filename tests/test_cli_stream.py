@@ -17,8 +17,6 @@ from hispo_pl.modules.hbc import HBC
 ROOT = Path(__file__).resolve().parents[1]
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"]
 
-pytestmark = pytest.mark.usefixtures("one_thread")
-
 
 def _stream_args(save_dir: Path) -> list[str]:
     extra = ("--trainer.log_every_n_steps", "1")
@@ -44,9 +42,9 @@ def test_stream_fit_prints_metrics_logs_and_resumes(tiny_umaze, tmp_path, capsys
     assert results["R"][1][0] == results["R"][0][0]
     assert results["MEM"] > 0  # a reference model size is passed by the CLI
     # ... that of the single-task HBC with the method config's architecture
-    goal_space = dict(low_obs=False, low_velocity=True, high_obs=False)  # PointMaze's inputs
+    inputs = dict(low_obs=False, low_velocity=True, high_obs=True)  # PointMaze's inputs
     stream_width = dict(high_hidden=192)  # configs/streams/pointmaze-1.yaml
-    reference = HBC(4, 2, backbone=BackboneConfig(**goal_space, **stream_width))
+    reference = HBC(4, 2, backbone=BackboneConfig(**inputs, **stream_width))
     assert results["MEM"] == pytest.approx(results["stored_bytes"] / module_bytes(reference))
     assert f"anchors per subspace: {results['anchors']}" in out
     assert f"tensorboard --logdir {run_dir}" in out

@@ -22,9 +22,6 @@ from hispo_pl.modules.hbc import GoalConditionedBC
 from hispo_pl.nn.critic import CriticConfig, SubspaceCritic
 from hispo_pl.nn.hierarchy import high_input, low_input
 
-pytestmark = pytest.mark.usefixtures("one_thread")
-
-
 # --- IQL's losses --------------------------------------------------------------------------------
 
 

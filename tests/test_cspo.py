@@ -29,8 +29,6 @@ from hispo_pl.tasks import FAMILIES
 ROOT = Path(__file__).resolve().parents[1]
 LEVELS = ("high", "low")
 
-pytestmark = pytest.mark.usefixtures("one_thread")
-
 
 def _module(seed: int = 0, **kw) -> CSPO:
     return tiny_hispo(seed, CSPO, **kw)
@@ -260,6 +258,8 @@ def test_act_mixes_both_levels_with_the_tasks_weights():
 
 
 def test_checkpoint_round_trip_acts_identically_on_every_task(tmp_path):
+    """Bit for bit, in one process: the restored module runs the saved weights through the same
+    kernels on the same shapes as the original."""
     m = _three_task_module()
     m.add_anchor("policy")  # a fourth task in progress: its pair and scores train below
     batches = [random_batch(16, seed=s) for s in range(3)]

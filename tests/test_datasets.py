@@ -275,6 +275,8 @@ def test_dataset_recovers_its_environment_by_gymnasium_id(tiny_umaze):
 
 
 def test_interrupted_generation_resumes_identically(monkeypatch, tmp_path):
+    """Identical arrays: a resume promises the uninterrupted data in the same environment (one
+    process, the same simulator and seeds)."""
     episodes = 4
     # reference: one uninterrupted run
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "straight"))

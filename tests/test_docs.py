@@ -62,6 +62,9 @@ def test_results_page_embeds_reports():
 
 @pytest.mark.parametrize("page", REPORT_PAGES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_embedded_reports_equal_their_rebuilt_run_files(page):
+    """Exact text: the reports format the committed files' numbers (float64 means and spreads
+    of a few values, in a fixed order), which every IEEE 754 machine rounds alike; nothing is
+    retrained."""
     name = page.relative_to(ROOT)
     assert embed_reports(page, ROOT) == page.read_text(), (
         f"{name} differs from its run files: rebuild it with\n"

@@ -112,6 +112,7 @@ def test_zero_policy_fails_and_runs_to_the_limit():
 
 
 def test_envs_are_reused_and_results_repeat(monkeypatch):
+    """Exact: the same seeds twice in one process, on the same environments."""
     evaluator = RolloutEvaluator("pointmaze-umaze", episodes=6, seed=1, max_episode_steps=80)
     try:
         envs = list(evaluator.envs)

@@ -19,7 +19,6 @@ from hispo_pl.nn import fast
 from hispo_pl.nn.mlp import ResidualMLP
 
 # one thread: the layout runs train in, where the fused kernels (hispo_pl.nn.native) are used
-pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def make_batch(n: int = 96, obs_dim: int = 4, action_dim: int = 2) -> dict[str, torch.Tensor]:
@@ -170,6 +169,7 @@ def test_fused_adam_update_matches_default_adam():
 
 
 def test_eval_and_no_grad_keep_the_plain_modules():
+    """Bit for bit, in one process: in eval mode both paths run the same plain modules."""
     torch.manual_seed(0)
     module, batch = HBC(4, 2).eval(), make_batch()
     out = module.act(batch["observation"], batch["position"], batch["goal"])

@@ -20,8 +20,6 @@ from hispo_pl.data.sampler import HERConfig, HERSampler
 from hispo_pl.decisions import decided_by_budget
 from hispo_pl.modules.hispo import HiSPO
 
-pytestmark = pytest.mark.usefixtures("one_thread")
-
 
 def _episodes(lengths: list[int]) -> EpisodeArrays:
     """Episodes whose rows carry their episode number as observation, position and action."""
@@ -67,7 +65,7 @@ def test_relabelled_goals_and_subgoals_never_leave_the_training_episodes():
         assert set(np.unique(batch[key][:, 0].numpy()).tolist()) <= allowed
 
 
-def test_datamodule_trains_on_train_and_scores_on_heldout_episodes():
+def test_datamodule_trains_on_train_and_scores_on_heldout_episodes(tiny_umaze):
     dm = TaskDataModule("pointmaze-umaze-N[3]", batch_size=64, steps_per_epoch=2, holdout=0.1)
     dm.setup("fit")
     train_rows = set(dm.splits["train"].sample_index.tolist())
@@ -92,7 +90,9 @@ def test_window_start_and_the_budget_rule():
     assert not decided_by_budget(None, eps=0.0)
 
 
-def test_decisions_record_heldout_and_train_losses_and_warn_when_decided_by_budget(tmp_path):
+def test_decisions_record_heldout_and_train_losses_and_warn_when_decided_by_budget(
+    tiny_umaze, tmp_path
+):
     stream = ["pointmaze-umaze-N[3]", "pointmaze-umaze-IA[3]"]
     torch.manual_seed(0)
     backbone, optim = BackboneConfig(high_hidden=8, low_hidden=16), OptimConfig(lr=3e-3)

@@ -1,6 +1,5 @@
-"""``high_obs=False``: the high (and flat) policy sees the goal-space velocity in the
-observation's place, so an observation variant leaves its inputs, and a subspace's fit to a
-task, unchanged."""
+"""``high_obs=False``: the high (and flat) policy sees the velocity of the sensed position in
+the observation's place."""
 
 from __future__ import annotations
 
@@ -17,8 +16,6 @@ from hispo_pl.modules.hispo import HiSPO
 from hispo_pl.modules.pnn import PNN
 from hispo_pl.nn.hierarchy import high_input, high_input_dim
 from hispo_pl.nn.mlp import feature_dim
-
-pytestmark = pytest.mark.usefixtures("one_thread")
 
 WIDTHS = {"high_hidden": 8, "low_hidden": 16, "dropout": 0.0}
 
@@ -69,7 +66,7 @@ def test_flat_policy_follows_the_high_inputs():
 @pytest.mark.parametrize(
     ("task", "choice", "expected"),
     [
-        ("pointmaze-umaze-N[3]", "family", False),
+        ("pointmaze-umaze-N[3]", "family", True),
         ("antmaze-umaze-N[3]", "family", False),
         ("amazeville-HOOO[3]", "family", True),
         ("pointmaze-umaze-N[3]", "observation", True),
@@ -85,20 +82,23 @@ def test_unknown_high_inputs_are_refused():
         TaskDataModule("pointmaze-umaze-N[3]", high_inputs="pixels")
 
 
-def test_observation_variant_leaves_the_goal_space_high_inputs_unchanged(tiny_umaze):
-    """The same relabelled batch of U-N and U-PO: observations differ, the inputs of a
-    goal-space high policy (PointMaze's default) do not."""
+def test_observation_variant_reaches_the_goal_space_high_policy_on_pointmaze(tiny_umaze):
+    """The same relabelled batch of U-N and U-PO: PointMaze senses its position through the
+    observation, so a goal-space high policy's inputs differ too, while its targets (subgoal
+    offsets in maze coordinates) do not."""
     policy = HBC(4, 2, backbone=BackboneConfig(**WIDTHS, high_obs=False)).reference_model()
     batches = {}
     for variant in ("N", "PO"):
-        dm = TaskDataModule(f"pointmaze-umaze-{variant}[6]", batch_size=64, holdout=0.5)
+        dm = TaskDataModule(
+            f"pointmaze-umaze-{variant}[6]", batch_size=64, holdout=0.5, high_inputs="goal"
+        )
         assert dm.high_obs is False
         dm.setup("fit")
         batches[variant] = dm.fixed_batches(1, seed=3)[0]
     assert not torch.equal(batches["N"]["observation"], batches["PO"]["observation"])
     x_n, target_n = policy.inputs("high", batches["N"])
     x_po, target_po = policy.inputs("high", batches["PO"])
-    assert torch.equal(x_n, x_po) and torch.equal(target_n, target_po)
+    assert not torch.equal(x_n, x_po) and torch.equal(target_n, target_po)
 
 
 def test_stream_links_the_family_high_inputs_into_the_model(tiny_umaze, tmp_path):
@@ -107,5 +107,5 @@ def test_stream_links_the_family_high_inputs_into_the_model(tiny_umaze, tmp_path
     )
     assert len(results["R"]) == 2
     module = GoalConditionedBC.from_checkpoint_file(str(run_dir / "task_02.ckpt"))
-    assert module.backbone_config.high_obs is False
-    assert module.reference_model().high.net.inp[0].in_features == high_input_dim(4, 2, False)
+    assert module.backbone_config.high_obs is True  # PointMaze's family choice
+    assert module.reference_model().high.net.inp[0].in_features == high_input_dim(4, 2, True)

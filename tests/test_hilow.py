@@ -19,8 +19,6 @@ from hispo_pl.nn.subspace import SubspaceLinear, sample_dirichlet, subspace_laye
 
 IN, OUT, RANK, K, M, B = 12, 10, 3, 4, 5, 7
 
-pytestmark = pytest.mark.usefixtures("one_thread")
-
 
 def _gen(seed: int = 0) -> torch.Generator:
     return torch.Generator().manual_seed(seed)
@@ -209,6 +207,8 @@ def test_every_linear_layer_is_low_rank_and_the_module_is_a_subspace_policy():
 
 
 def test_first_task_is_hispo_exactly():
+    """Bit for bit, in one process: with one anchor HiLOW's layers scale their weights by
+    exactly 1 and run HiSPO's kernels on HiSPO's shapes."""
     hilow = _module(seed=4)
     torch.manual_seed(4)
     hispo = HiSPO(**HISPO_SIZES)
@@ -312,6 +312,8 @@ def _three_task_module() -> HiLOW:
 
 
 def test_checkpoint_round_trip_restores_every_task(tmp_path):
+    """Bit for bit, in one process: the restored module runs the saved weights through the same
+    kernels on the same shapes as the original."""
     m = _three_task_module()
     m.add_anchor("high")  # a fourth high anchor, trained below
     batches = [random_batch(16, seed=s) for s in range(3)]

@@ -22,9 +22,6 @@ from hispo_pl.modules.hispo import SUBSPACES, HiSPO, training_alphas
 from hispo_pl.nn.hierarchy import high_input, low_input
 from hispo_pl.nn.mlp import gaussian_nll
 
-pytestmark = pytest.mark.usefixtures("one_thread")
-
-
 # --- acting -------------------------------------------------------------------------------------
 
 
@@ -141,6 +138,8 @@ def _saved_by_trainer(module: HiSPO, path) -> None:
 
 
 def test_checkpoint_round_trip_restores_structure_and_every_task(tmp_path):
+    """Bit for bit, in one process: the restored module runs the saved weights through the same
+    kernels on the same shapes as the original."""
     m = _three_task_module()
     m.add_anchor("high")  # a fourth, trainable high anchor, trained by the fit below
     path = tmp_path / "task_03.ckpt"
@@ -174,6 +173,8 @@ def test_checkpoint_round_trip_restores_structure_and_every_task(tmp_path):
 
 
 def test_load_into_a_larger_module_shrinks_it(tmp_path):
+    """Bit for bit, in one process: the restored module runs the saved weights through the same
+    kernels on the same shapes as the original."""
     m = _three_task_module()
     path = tmp_path / "task_03.ckpt"
     _saved_by_trainer(m, path)
@@ -190,7 +191,8 @@ def test_load_into_a_larger_module_shrinks_it(tmp_path):
 def test_anchors_added_later_leave_a_finished_task_bit_identical(seed):
     """A finished task's weights get a 0 for every later anchor; its actions must not change by
     a single bit (BWT exactly 0). Mixing the zero-weighted anchors too changes the rounding of
-    the sum (7e-7 here), enough to flip a rollout of a 600-step episode."""
+    the sum (7e-7 here), enough to flip a rollout of a 600-step episode. A promise within one
+    process, whose kernels run on the same shapes before and after."""
     torch.manual_seed(seed)
     m = HiSPO(4, 2, backbone=BackboneConfig(high_log_std=0.0)).eval()  # the method config's widths
     for name in SUBSPACES:

@@ -30,8 +30,6 @@ SIZES = {"obs_dim": 4, "action_dim": 2, "backbone": BackboneConfig(high_hidden=8
 SEED = 0
 COMPARED = ("stream", "R", "PER", "BWT", "stored_bytes", "anchors", "alphas", "table")
 
-pytestmark = pytest.mark.usefixtures("one_thread")
-
 
 class Interrupted(Exception):
     """Stands for a run killed between two tasks."""
@@ -142,6 +140,8 @@ def test_rerun_of_a_finished_run_trains_nothing(uninterrupted, capsys):
 
 
 def test_resume_after_an_interruption_reproduces_the_uninterrupted_run(uninterrupted, tmp_path):
+    """A resume promises the uninterrupted run bit for bit in the same environment: here both
+    run in this process, with one thread and the same kernels."""
     interrupted = _loop(tmp_path, stop_at=2)
     with pytest.raises(Interrupted):
         interrupted.run()

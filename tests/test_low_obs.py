@@ -20,8 +20,6 @@ from hispo_pl.modules.regularized import RegularizedFineTuning
 from hispo_pl.nn.hierarchy import HierarchicalPolicy, high_input, low_input
 from hispo_pl.nn.mlp import feature_dim
 
-pytestmark = pytest.mark.usefixtures("one_thread")
-
 WIDTHS = {"high_hidden": 8, "low_hidden": 16, "dropout": 0.0}
 
 

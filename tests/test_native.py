@@ -13,8 +13,6 @@ import torch.nn.functional as F
 from hispo_pl.nn import fast, native
 from hispo_pl.nn.mlp import ResidualMLP
 
-pytestmark = pytest.mark.usefixtures("one_thread")
-
 
 def test_kernels_are_built_where_a_compiler_is():
     if shutil.which("cc") or shutil.which("gcc"):

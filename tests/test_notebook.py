@@ -30,8 +30,6 @@ CALLBACKS = [
     {"class_path": "hispo_pl.callbacks.RolloutEvaluation", "init_args": {"episodes": 2}},
 ]
 
-pytestmark = pytest.mark.usefixtures("one_thread")
-
 
 def _execute(run_dir: Path, monkeypatch) -> nbformat.NotebookNode:
     """Run the notebook as ``jupyter nbconvert --execute`` would (cwd: its folder)."""

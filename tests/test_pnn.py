@@ -25,8 +25,6 @@ from hispo_pl.nn.progressive import (
 ROOT = Path(__file__).resolve().parents[1]
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"]
 
-pytestmark = pytest.mark.usefixtures("one_thread")
-
 
 def _module(kind: str = "hbc") -> PNN:
     return PNN(4, 2, backbone=BackboneConfig(kind=kind, high_hidden=8, low_hidden=16))
@@ -84,6 +82,8 @@ def _checkpoint(module: PNN, path: Path) -> Path:
 
 
 def test_first_column_is_a_plain_residual_mlp():
+    """Bit for bit, in one process: the same weights through the same kernels on the same
+    shapes, and in training the same seeded masks."""
     net = ProgressiveMLP(7, 16, 3, dropout=0.1)
     plain = ResidualMLP(7, 16, 3, dropout=0.1)
     plain.load_state_dict(net.columns[0].state_dict())
@@ -99,6 +99,8 @@ def test_first_column_is_a_plain_residual_mlp():
 
 
 def test_one_column_pnn_is_the_hbc_network():
+    """Bit for bit, in one process: a single column runs the HBC network's kernels on its
+    shapes."""
     m = _module().eval()
     hbc = HierarchicalPolicy(BackboneConfig(high_hidden=8, low_hidden=16), 4, 2).eval()
     hbc.high.net.load_state_dict(m.net.high.net.columns[0].state_dict())
@@ -110,8 +112,9 @@ def test_one_column_pnn_is_the_hbc_network():
 
 
 def test_flat_pnn_is_flat_bc_in_columns():
-    """``kind="bc"``: one column is the flat BC network; columns grow, freeze and keep
-    earlier tasks' actions as in the hierarchical PNN."""
+    """``kind="bc"``: one column is the flat BC network; columns grow, freeze and keep earlier
+    tasks' actions as in the hierarchical PNN. Bit for bit, in one process: a single column
+    runs flat BC's kernels on its shapes."""
     m = _module("bc").eval()
     flat = HierarchicalPolicy(BackboneConfig(kind="bc", low_hidden=16), 4, 2).eval()
     flat.policy.net.load_state_dict(m.net.policy.net.columns[0].state_dict())
@@ -248,6 +251,8 @@ def test_stored_size_grows_with_the_laterals():
 
 
 def test_checkpoint_alone_acts_identically_on_every_task(tmp_path):
+    """Bit for bit, in one process: the restored module runs the saved weights through the same
+    kernels on the same shapes as the original."""
     m = _module()
     _run_tasks(m, range(3))
     m.eval()
@@ -261,6 +266,8 @@ def test_checkpoint_alone_acts_identically_on_every_task(tmp_path):
 
 
 def test_flat_pnn_checkpoint_restores_its_columns(tmp_path):
+    """Bit for bit, in one process: the restored module runs the saved weights through the same
+    kernels on the same shapes as the original."""
     m = _module("bc")
     _run_tasks(m, range(3))
     m.eval()
@@ -272,6 +279,8 @@ def test_flat_pnn_checkpoint_restores_its_columns(tmp_path):
 
 
 def test_resume_from_a_checkpoint_adds_one_column_and_freezes_the_rest(tmp_path):
+    """Bit for bit, in one process: the restored module runs the saved weights through the same
+    kernels on the same shapes as the original."""
     m = _module()
     _run_tasks(m, range(2))
     path = _checkpoint(m, tmp_path / "task_02.ckpt")
@@ -327,7 +336,7 @@ def test_flat_stream_end_to_end(tiny_umaze, tmp_path):
     )
     assert isinstance(second, PNN) and second.n_columns == 2
     hp = second
-    assert hp.backbone_config.high_obs is False  # PointMaze: the flat policy reads goal space
+    assert hp.backbone_config.high_obs is True  # PointMaze: the flat policy reads the observation
     shape = (
         high_input_dim(hp.obs_dim, hp.goal_dim, hp.backbone_config.high_obs),
         hp.backbone_config.low_hidden,

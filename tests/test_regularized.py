@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import lightning as L
@@ -15,8 +16,6 @@ from hispo_pl.modules.regularized import empirical_fisher, flat_parameters, merg
 
 ROOT = Path(__file__).resolve().parents[1]
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"]
-
-pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _batch(n: int, seed: int = 0) -> dict[str, torch.Tensor]:
@@ -108,9 +107,26 @@ def test_checkpoint_restores_the_penalty(tmp_path):
     assert restored.penalty().item() > 0
 
 
+# ewc.yaml's callbacks with a Fisher over 2 batches of 64 (its own: 16 of 256, most of the run)
+EWC_CALLBACKS = [
+    {"class_path": "hispo_pl.callbacks.TaskNetworks"},
+    {
+        "class_path": "hispo_pl.callbacks.WeightConsolidation",
+        "init_args": {"fisher_batches": 2, "batch_size": 64},
+    },
+    {
+        "class_path": "hispo_pl.callbacks.RolloutEvaluation",
+        "init_args": {"eval_every": 0, "episodes": 2, "seed": 0},
+    },
+]
+
+
 @pytest.mark.parametrize("method,mem", [("l2", 2), ("ewc", 3)])
 def test_stream_end_to_end(method, mem, tiny_umaze, tmp_path):
-    results, run_dir = fit_tiny_stream(method, tmp_path, STREAM, "--trainer.log_every_n_steps", "1")
+    extra = ["--trainer.log_every_n_steps", "1"]
+    if method == "ewc":
+        extra += ["--trainer.callbacks", json.dumps(EWC_CALLBACKS)]
+    results, run_dir = fit_tiny_stream(method, tmp_path, STREAM, *extra)
     # stored: the network plus the penalty's centre (and, for EWC, its importance vector)
     assert results["MEM"] == pytest.approx(mem, rel=1e-3)
     second = GoalConditionedBC.from_checkpoint_file(str(run_dir / "task_02.ckpt"))

@@ -1,6 +1,6 @@
-"""Nothing lost, nothing silently wrong (issue 17): hispo-pl under kills, bad input and
-untrusted files. Each test is one probe of the issue; the kill tests use real subprocesses
-and SIGKILL. Budgets are tiny: a few steps, a few episodes."""
+"""Nothing lost, nothing silently wrong: hispo-pl under kills, bad input and untrusted
+files. Each test probes one way a run could lose work or accept a wrong file; the kill tests
+use real subprocesses and SIGKILL. Budgets are tiny: a few steps, a few episodes."""
 
 from __future__ import annotations
 
@@ -17,9 +17,6 @@ from probes import SLOW_STEPS, TINY_HISPO, cli_source, spawn, stream_dir, wait_f
 from hispo_pl.cli import main
 from hispo_pl.config import BackboneConfig
 from hispo_pl.errors import TrainingDivergedError
-
-pytestmark = pytest.mark.usefixtures("one_thread")
-
 
 # --- 1. data generate: a dataset cut short counts as missing --------------------------------
 

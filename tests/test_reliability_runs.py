@@ -1,6 +1,6 @@
-"""Nothing lost under kills (issue 17), continued: the run directory's integrity, resuming inside
-a task, and the benchmark under a failed method or a kill. Real subprocesses and SIGKILL;
-tiny budgets."""
+"""Nothing lost under kills, continued from test_reliability.py: the run directory's
+integrity, resuming inside a task, and the benchmark under a failed method or a kill. Real
+subprocesses and SIGKILL; tiny budgets."""
 
 from __future__ import annotations
 
@@ -15,9 +15,6 @@ from helpers import ROOT, fit_tiny_stream, tiny_stream_args
 from probes import SLOW_STEPS, TINY_HISPO, cli_source, spawn, stream_dir, wait_for
 
 from hispo_pl.cli import main
-
-pytestmark = pytest.mark.usefixtures("one_thread")
-
 
 # --- 4. run directory integrity ---------------------------------------------------------------
 
@@ -101,6 +98,9 @@ def test_results_and_progress_are_written_atomically(tiny_run, monkeypatch):
 
 
 def test_killed_inside_a_task_resumes_there_and_ends_identical(tiny_umaze, tmp_path, capsys):
+    """A resume promises the uninterrupted run bit for bit in the same environment: the killed
+    child ran on this machine with this process's kernels and one thread (``probes.spawn`` sets
+    OMP_NUM_THREADS=1)."""
     stream = ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"]
     extra = ["--trainer.max_steps", "24", "--checkpoint_every", "5", "--data.steps_per_epoch", "7"]
     whole = fit_tiny_stream("ftn", tmp_path / "whole", stream, *extra)[0]

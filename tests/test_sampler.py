@@ -173,8 +173,10 @@ def test_sampler_keys_shapes_dtypes():
     data = _indexed_dataset(obs_dim=3, act_dim=2)
     sampler = HERSampler(data, HERConfig(waysteps=5, temperature=10.0), batch_size=64, seed=0)
     batch = sampler.sample()
-    assert set(batch) == {"observation", "position", "velocity", "goal", "subgoal", "action"}
-    shapes = {"observation": 3, "position": 2, "velocity": 2, "goal": 2, "subgoal": 2, "action": 2}
+    keys = {"observation", "position", "agent_position", "velocity", "goal", "subgoal", "action"}
+    assert set(batch) == keys
+    shapes = {"observation": 3, "velocity": 2, "goal": 2, "subgoal": 2, "action": 2}
+    shapes |= {"position": 2, "agent_position": 2}
     for key, dim in shapes.items():
         assert isinstance(batch[key], torch.Tensor)
         assert batch[key].shape == (64, dim), key

@@ -10,8 +10,6 @@ from hispo_pl.modules.hispo import HiSPO
 from hispo_pl.nn.subspace import sample_dirichlet
 from hispo_pl.search import race_candidates, resolve_precision
 
-pytestmark = pytest.mark.usefixtures("one_thread")
-
 
 def _quadratic_score(target: torch.Tensor, noise: float = 0.0):
     """Loss of α on batch b: squared distance to ``target`` plus a per-(batch, α) jitter, and

@@ -23,7 +23,6 @@ study = importlib.util.module_from_spec(spec)
 sys.modules[spec.name] = study  # its dataclasses look their module up
 spec.loader.exec_module(study)
 
-pytestmark = pytest.mark.usefixtures("one_thread")
 
 CONFIG = str(ROOT / "configs/hbc/pointmaze-{maze}.yaml")
 

@@ -266,6 +266,8 @@ def test_remove_last_anchor_restores_previous():
 
 
 def test_set_n_anchors_then_load_state_dict():
+    """Bit for bit, in one process: the loaded network runs the same weights through the same
+    kernels on the same shapes."""
     src = _mlp(k=4, seed=10)
     dst = SubspaceResidualMLP(IN, HID, OUT, n_anchors=1).eval()
     with pytest.raises(RuntimeError):

@@ -117,6 +117,8 @@ def _record_episodes(env, n_episodes: int, steps: int):
 
 @pytest.mark.parametrize("variant", list(VARIANTS))
 def test_dataset_view_matches_wrapped_env(pointmaze_envs, variant):
+    """The achieved goals are compared exactly: both rollouts run on one simulator in one
+    process, and a variant's transforms only permute and negate."""
     task = parse_task(f"pointmaze-umaze-{variant}")
     steps = 40
     episodes = _record_episodes(pointmaze_envs["base"], 2, steps)

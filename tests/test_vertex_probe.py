@@ -17,8 +17,6 @@ spec = importlib.util.spec_from_file_location(
 vertex_probe = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(vertex_probe)
 
-pytestmark = pytest.mark.usefixtures("one_thread")
-
 
 def _two_task_module():
     m = tiny_hispo()

@@ -191,6 +191,7 @@ def test_expert_interface_and_action_format():
 
 
 def test_expert_is_reproducible():
+    """Exact: the same seed twice in one process, the same simulator."""
     a = run_episode("amazeville-LOOX", seed=4)[1]
     b = run_episode("amazeville-LOOX", seed=4)[1]
     c = run_episode("amazeville-LOOX", seed=5)[1]

@@ -17,8 +17,6 @@ from hispo_pl.modules import GoalConditionedBC, HiSPO
 ROOT = Path(__file__).resolve().parents[1]
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-N[3]"]  # the same task twice
 
-pytestmark = pytest.mark.usefixtures("one_thread")
-
 
 def _method_config(tmp_path: Path, **transfer) -> Path:
     config = yaml.safe_load((ROOT / "configs/methods/hispo-pac.yaml").read_text())

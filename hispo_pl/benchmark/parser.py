@@ -55,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         default=None,
         help="gradient steps per task (--trainer.max_steps); default: the stream config's own "
-        "value (6000 in configs/streams/pointmaze-*.yaml; the paper's is 100000)",
+        "value (6000 in configs/streams/pointmaze-*.yaml; the authors' code's 100000)",
     )
     parser.add_argument(
         "--workers",

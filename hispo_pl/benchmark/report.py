@@ -13,7 +13,14 @@ from ..io import atomic_write_text
 from ..rundir import RunDir
 from .plan import PLAN_FILE, RUNS_DIR
 from .records import MethodRow, RunRecord, aggregate, load_records, results_matrix
-from .tables import critic_markdown, decisions_markdown, runtime_csv, table_csv, table_markdown
+from .tables import (
+    before_training_markdown,
+    critic_markdown,
+    decisions_markdown,
+    runtime_csv,
+    table_csv,
+    table_markdown,
+)
 
 
 def plot_perf_vs_memory(rows: Sequence[MethodRow], path: Path, stream: str = "") -> bool:
@@ -104,11 +111,11 @@ def unfinished_markdown(runs: Sequence[tuple[str, int, str]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_report(out: Path, stream: str | None = None) -> list[Path]:
+def write_report(out: Path, stream: str | None = None, figures: bool = True) -> list[Path]:
     """Rebuild ``table.md``, ``table.csv``, ``runtime.csv``, ``perf_vs_memory.png``, the
     success heatmaps and, where runs made decisions, ``decisions.md`` (loss rules) and
-    ``critic.md`` (CSP's critic) in ``out`` from every finished run under ``out/runs``.
-    Returns the files written.
+    ``critic.md`` (CSP's critic) in ``out`` from every finished run under ``out/runs``
+    (``figures=False``: the text files only). Returns the files written.
 
     Raises:
         FileNotFoundError: no finished run under ``out/runs``.
@@ -133,13 +140,14 @@ def write_report(out: Path, stream: str | None = None) -> list[Path]:
         atomic_write_text(out / name, text)
         written.append(out / name)
     for name, text in (
+        ("before_training.md", before_training_markdown(records, stream)),
         ("decisions.md", decisions_markdown(records, stream)),
         ("critic.md", critic_markdown(records, stream)),
     ):
         if text:
             atomic_write_text(out / name, text)
             written.append(out / name)
-    if plot_perf_vs_memory(rows, out / "perf_vs_memory.png", stream):
+    if figures and plot_perf_vs_memory(rows, out / "perf_vs_memory.png", stream):
         written.append(out / "perf_vs_memory.png")
         written += plot_success_matrices(records, out)
     return written
@@ -174,7 +182,7 @@ def embed_reports(doc: Path, root: Path = Path(".")) -> str:
             stream = (target.parent / PLAN_FILE).exists() and json.loads(
                 (target.parent / PLAN_FILE).read_text()
             ).get("stream")
-            write_report(Path(tmp), stream or target.parent.name)
+            write_report(Path(tmp), stream or target.parent.name, figures=False)
             text = (Path(tmp) / target.name).read_text().splitlines()
         out += [x for x in text[1:] if x or out[-1]]  # without the title, no doubled blank
         while i < len(lines) and lines[i] != EMBED_END:

@@ -7,7 +7,10 @@ import csv
 import io
 from collections.abc import Sequence
 
-from .records import MethodRow, RunRecord, format_mean_std
+import numpy as np
+
+from ..tasks import parse_task
+from .records import MethodRow, RunRecord, format_mean_std, results_matrix
 
 SCALED = ("PER", "BWT", "FWT")  # success fractions, reported ×100 like the paper
 
@@ -138,6 +141,40 @@ def critic_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
         "spread of Q over the data's, the policy's and uniform actions at a state, averaged "
         "over states; over states: the spread of Q(s, g, a_data); action dependence: their "
         "ratio (near 0: the critic values states, not actions).\n"
+    )
+    return "\n".join(lines) + "\n" + legend
+
+
+def before_training_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
+    """Each task's success right before it is trained (R[k − 1, k], after the task before
+    it), per method: how much of a task an earlier one already solves, e.g. whether an
+    observation variant breaks a policy trained on its N task. Empty for one-task streams."""
+    specs = next((r.results.get("stream") for r in records if r.results.get("stream")), None)
+    if not records or not specs or len(specs) < 2:
+        return ""
+    names = [
+        f"T{k + 1:02d} {parse_task(s).maze}-{parse_task(s).variant}" for k, s in enumerate(specs)
+    ]
+    lines = [
+        f"# Success before training{': ' + stream if stream else ''}\n",
+        "| method | seeds | " + " | ".join(names[1:]) + " |",
+        "|---|---:|" + "---:|" * (len(names) - 1),
+    ]
+    for method in dict.fromkeys(r.method for r in records):
+        mine = [r for r in records if r.method == method and r.results.get("stream") == specs]
+        if not mine:
+            continue
+        before = np.stack([np.diagonal(results_matrix(r.results), offset=1) for r in mine])
+        cells = [
+            f"{100 * col.mean():.0f} ({100 * col.min():.0f}–{100 * col.max():.0f})"
+            if len(mine) > 1
+            else f"{100 * col[0]:.0f}"
+            for col in before.T
+        ]
+        lines.append(f"| {method} | {len(mine)} | " + " | ".join(cells) + " |")
+    legend = (
+        "\nSuccess ×100 on each task evaluated right after the task before it, before any "
+        "step on it; mean over seeds (min–max).\n"
     )
     return "\n".join(lines) + "\n" + legend
 

@@ -10,7 +10,15 @@ import torch
 from torch.utils.data import DataLoader, IterableDataset
 
 from ..errors import ConfigError
-from ..tasks import HIGH_INPUTS, LOW_INPUTS, Task, parse_stream, parse_task
+from ..tasks import (
+    HIGH_INPUTS,
+    LOW_INPUTS,
+    Task,
+    parse_stream,
+    parse_task,
+    unseen_variant_tasks,
+    unseen_variants_message,
+)
 from .datasets import EpisodeArrays, load_episodes, open_dataset
 from .sampler import HERConfig, HERSampler, Horizon, MixedSampler, Strategy
 
@@ -74,17 +82,20 @@ class TaskDataModule(L.LightningDataModule):
             batches from the current task only.
         low_inputs: what the low policy of the model sees (linked to its ``low_obs`` and
             ``low_velocity``): ``observation`` (the subgoal's features and the observation),
-            ``goal`` (the subgoal's features and the goal-space velocity: no observation, so no
-            observation variant reaches it), ``subgoal`` (the subgoal's features only), or
-            ``family``: the family's own choice (PointMaze ``goal``; AntMaze and the game
-            mazes ``observation``, whose agents need their body state or depth image).
+            ``goal`` (the subgoal's features and the velocity of the sensed position),
+            ``subgoal`` (the subgoal's features only), or ``family``: the family's own choice
+            (PointMaze ``goal``; AntMaze and the game mazes ``observation``, whose agents need
+            their body state or depth image).
         high_inputs: what the high policy (and the flat BC policy) sees besides the features of
-            the goal offset, the position and the goal (linked to the model's ``high_obs``):
-            ``observation`` (the authors'), ``goal`` (the goal-space velocity instead, so an
-            observation variant does not move its inputs), or ``family``: the family's choice
-            (PointMaze and AntMaze ``goal``: where to go next depends on the maze, not on the
-            ball's or the legs' state; the game mazes ``observation``, whose depth image shows
-            the doors and blocks).
+            the goal offset, the sensed position and the goal (linked to the model's
+            ``high_obs``): ``observation`` (the authors'), ``goal`` (the velocity of the sensed
+            position instead), or ``family``: the family's choice (AntMaze ``goal``;
+            PointMaze and the game mazes ``observation``). The position is sensed through the
+            observation where the family's observation holds it (PointMaze:
+            :func:`~hispo_pl.tasks.agent_position`), so an
+            observation variant reaches goal-space inputs there; elsewhere it is in maze
+            coordinates, and inputs under which no policy would see a stream's IO or PO task
+            are refused.
         holdout: share of each task's episodes never trained on (chosen by episode, with a
             fixed seed): the subspace search, ``L_curr`` and the zero-shot test score on them,
             so that a decision measures how a policy generalises, not how well it memorised.
@@ -152,6 +163,9 @@ class TaskDataModule(L.LightningDataModule):
         self.holdout = holdout
         self.low_inputs = _input_choice("low_inputs", low_inputs, LOW_INPUTS)
         self.high_inputs = _input_choice("high_inputs", high_inputs, HIGH_INPUTS)
+        unseen = unseen_variant_tasks(self.tasks or [self.task], self.low_obs or self.high_obs)
+        if unseen:
+            raise ConfigError(unseen_variants_message(unseen, f"with {self.inputs_summary},"))
         self.transitions = transitions
         self.data: EpisodeArrays | None = None  # every episode of the task
         self.splits: dict[Split, EpisodeArrays] = {}  # "train" and "heldout" parts of data
@@ -206,12 +220,30 @@ class TaskDataModule(L.LightningDataModule):
     @property
     def high_obs(self) -> bool:
         """Whether the high policy sees the observation (see ``high_inputs``)."""
-        family = self.task.env_family.high_inputs
-        return HIGH_INPUTS[family if self.high_inputs == "family" else self.high_inputs]
+        return HIGH_INPUTS[self.resolved_inputs[1]]
 
     def _low_inputs(self) -> tuple[bool, bool]:
-        name = self.task.env_family.low_inputs if self.low_inputs == "family" else self.low_inputs
-        return LOW_INPUTS[name]
+        return LOW_INPUTS[self.resolved_inputs[0]]
+
+    @property
+    def resolved_inputs(self) -> tuple[str, str]:
+        """(low, high) inputs with ``family`` replaced by the family's own choice."""
+        family = self.task.env_family
+        low = family.low_inputs if self.low_inputs == "family" else self.low_inputs
+        high = family.high_inputs if self.high_inputs == "family" else self.high_inputs
+        return low, high
+
+    @property
+    def inputs_summary(self) -> str:
+        """``--data.low_inputs goal and --data.high_inputs goal``, ``family`` resolved."""
+        (low, high), named = self.resolved_inputs, (self.low_inputs, self.high_inputs)
+        parts = [
+            f"--data.{flag} {value}" + (" (the family's)" if given == "family" else "")
+            for flag, value, given in zip(
+                ("low_inputs", "high_inputs"), (low, high), named, strict=True
+            )
+        ]
+        return " and ".join(parts)
 
     @property
     def binary_actions(self) -> int:

@@ -16,6 +16,7 @@ from ..errors import UserError
 from ..tasks import (
     FAMILIES,
     Task,
+    agent_position,
     parse_task,
     transform_action,
     transform_observation,
@@ -99,6 +100,9 @@ class EpisodeArrays:
     episode_end: np.ndarray  # [N] int64
     sample_index: np.ndarray  # [M] int64, rows with an action
     segment_end: np.ndarray  # [N] int64, last row of the row's goal segment (<= episode_end)
+    # [N, goal_dim] float32, the position as the agent senses it in the arrays' variant
+    # (:func:`~hispo_pl.tasks.agent_position`, set by :meth:`for_task`); None: ``positions``
+    agent_positions: np.ndarray | None = None
 
     @property
     def n_episodes(self) -> int:
@@ -129,10 +133,12 @@ class EpisodeArrays:
 
     def for_task(self, task: Task) -> EpisodeArrays:
         """The arrays as an agent in ``task``'s variant sees them."""
+        observations = transform_observation(task, self.observations)
         return replace(
             self,
-            observations=transform_observation(task, self.observations),
+            observations=observations,
             actions=transform_action(task, self.actions),
+            agent_positions=agent_position(task, observations, self.positions),
         )
 
 

@@ -72,12 +72,16 @@ class HERSampler:
 
     Each batch is a dict of float32 tensors: ``observation`` [B, obs], ``position`` [B, 2],
     ``goal`` [B, 2] (a future achieved position), ``subgoal`` [B, 2] (``waysteps`` ahead),
-    ``velocity`` [B, 2] (the last position step over ``step_seconds``, 0 at an episode's first
-    row: what a rollout can compute from the positions it has seen, see
-    :func:`position_velocity`) and ``action`` [B, act]. With ``transitions=True`` (opt-in, for
-    critics) also ``next_observation`` and ``next_position``: row i + 1 of the same episode (a
-    sampled row always has one, since the final row of an episode carries no action). The
-    option draws nothing more, so the other keys are the same batch for batch either way.
+    ``agent_position`` [B, 2] (the position as the agent senses it, the policies' input:
+    ``position`` itself unless the family's observation holds it, see
+    :func:`~hispo_pl.tasks.agent_position`), ``velocity`` [B, 2] (the last step of the sensed
+    position over ``step_seconds``, 0 at an episode's first row: what a rollout can compute
+    from the positions it has sensed, see :func:`position_velocity`) and ``action`` [B, act].
+    Positions, goals and subgoals are in maze coordinates: the targets. With
+    ``transitions=True`` (opt-in, for critics) also ``next_observation`` and
+    ``next_position``: row i + 1 of the same episode (a sampled row always has one, since the
+    final row of an episode carries no action). The option draws nothing more, so the other
+    keys are the same batch for batch either way.
     """
 
     def __init__(
@@ -95,6 +99,8 @@ class HERSampler:
         self.rng = np.random.default_rng(seed)
         self._obs = torch.from_numpy(np.ascontiguousarray(data.observations, dtype=np.float32))
         self._pos = torch.from_numpy(np.ascontiguousarray(data.positions, dtype=np.float32))
+        sensed = data.positions if data.agent_positions is None else data.agent_positions
+        self._agent_pos = torch.from_numpy(np.ascontiguousarray(sensed, dtype=np.float32))
         self._act = torch.from_numpy(np.ascontiguousarray(data.actions, dtype=np.float32))
         self._end = data.episode_end
         self._segment_end = data.segment_end
@@ -109,12 +115,13 @@ class HERSampler:
         i = self._index[self.rng.integers(0, len(self._index), n)]
         goal, subgoal = relabel_indices(i, self._end, self.cfg, self.rng, self._segment_end)
         i, goal, subgoal = (torch.from_numpy(x) for x in (i, goal, subgoal))
-        position = self._pos[i]
+        sensed = self._agent_pos[i]
         batch = {
             "observation": self._obs[i],
-            "position": position,
+            "position": self._pos[i],
+            "agent_position": sensed,
             "velocity": position_velocity(
-                position, self._pos[self._previous[i]], self._step_seconds
+                sensed, self._agent_pos[self._previous[i]], self._step_seconds
             ),
             "goal": self._pos[goal],
             "subgoal": self._pos[subgoal],
@@ -127,8 +134,8 @@ class HERSampler:
 
 
 def position_velocity(position, previous, step_seconds: float):
-    """Velocity in goal space from two consecutive positions: the same in the data and in a
-    rollout, and untouched by observation variants (positions stay in maze coordinates)."""
+    """Velocity in goal space from two consecutive sensed positions, the same in the data and
+    in a rollout."""
     return (position - previous) / step_seconds
 
 

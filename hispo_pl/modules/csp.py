@@ -209,7 +209,8 @@ class CSP(CSPO):
 
     def _mixed_actions(self, alphas: Tensor, batch: dict[str, Tensor]) -> Tensor:
         """Deterministic actions [M, B, A] of the policies mixed with ``alphas`` [M, K]."""
-        obs, pos, goal = batch["observation"], batch["position"], batch["goal"]
+        obs, goal = batch["observation"], batch["goal"]
+        pos = batch.get("agent_position", batch["position"])  # as the policies sense it
         return self.policies.act(
             obs, pos, goal, batch.get("velocity"), lambda name, x: self.policies[name](x, alphas)
         )

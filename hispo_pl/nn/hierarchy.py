@@ -127,7 +127,10 @@ class HierarchicalPolicy(nn.Module):
         return {name: self[name] for name in self.names}
 
     def inputs(self, name: str, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
-        """Input and target of head ``name`` on a training batch (the true subgoal feeds low)."""
+        """Input and target of head ``name`` on a training batch (the true subgoal feeds low).
+        The high input reads the position as the agent senses it (``agent_position``, else
+        ``position``); subgoal offsets, targets and the low policy's input, are in maze
+        coordinates, as the high policy predicts them."""
         obs, pos = batch["observation"], batch["position"]
         if name == "low":
             velocity = batch["velocity"] if self.config.low_velocity else None
@@ -135,7 +138,8 @@ class HierarchicalPolicy(nn.Module):
             return x, batch["action"]
         target = batch["subgoal"] - pos if name == "high" else batch["action"]
         velocity = None if self.config.high_obs else batch["velocity"]
-        return high_input(obs, pos, batch["goal"], velocity), target
+        sensed = batch.get("agent_position", pos)
+        return high_input(obs, sensed, batch["goal"], velocity), target
 
     def _forward(self, forward: Forward | None) -> Forward:
         return forward or (lambda name, x: self[name](x))
@@ -170,7 +174,9 @@ class HierarchicalPolicy(nn.Module):
         velocity: Tensor | None = None,
         forward: Forward | None = None,
     ) -> Tensor:
-        """The deterministic action. A ``forward`` that mixes M anchor-weight vectors at once
+        """The deterministic action, ``position`` and ``velocity`` as the agent senses them
+        (:func:`~hispo_pl.tasks.agent_position`). A ``forward`` that mixes M anchor-weight
+        vectors at once
         gives actions [M, B, A]: the low policy's other inputs are broadcast to them."""
         forward = self._forward(forward)
         high_velocity = velocity_input(not self.config.high_obs, velocity, "high")

@@ -1,0 +1,83 @@
+"""Presets: a named set of settings written over a run's configuration before it is built.
+
+``--preset paper`` runs any method as the paper specifies it (its hyperparameter table and
+method text), instead of the house defaults the method configs carry; the budget (steps per
+task) stays the stream config's. ``docs/method.md`` lists both side by side. A preset is
+applied before the run's fingerprint is taken, so a resumed run keeps it.
+"""
+
+from __future__ import annotations
+
+from .errors import ConfigError
+from .tasks import parse_stream, parse_task
+
+PRESETS = ("paper",)
+
+# the paper's settings for every method: (config key, value); callbacks' by class name below
+PAPER_COMMON: tuple[tuple[str, object], ...] = (
+    ("model.init_args.optim.lr", 3e-4),
+    ("model.init_args.optim.schedule", "cosine"),
+    ("model.init_args.backbone.high_log_std", None),  # a learned std: the Gaussian NLL
+    ("model.init_args.backbone.low_log_std", None),
+    ("model.init_args.backbone.dropout", 0.1),
+    ("data.waysteps", None),  # the per-maze waysteps and HER temperatures of its table
+    ("data.her_temperature", None),
+    ("data.goal_horizon", "episode"),  # goals relabelled up to the episode's end
+    ("data.holdout", 0.0),  # no held-out split: decisions scored on the training data
+    ("data.low_inputs", "observation"),  # its input sizes: observation, position and goal
+    ("data.high_inputs", "observation"),
+)
+# widths (high, low): 64 / 256; HiSPO 70 / 300 on AntMaze and the game mazes
+PAPER_WIDTHS = (64, 256)
+PAPER_HISPO_WIDTHS = {"antmaze": (70, 300), "amazeville": (70, 300), "simpletown": (70, 300)}
+PAPER_BATCH = {"pointmaze": 1024, "antmaze": 1024, "amazeville": 64, "simpletown": 64}
+# HiSPO's method text: a new anchor at random, the trained weights as alpha_curr; one tolerance
+# of its grid {0.01, 0.05, 0.1, 0.25} for both subspaces
+PAPER_HISPO_MODEL = (("model.init_args.anchor_init", "random"),)
+PAPER_CALLBACKS: dict[str, dict[str, object]] = {
+    "DirichletEvaluation": {"refine_current": False},
+    "SubspacePruning": {"eps_high": 0.1, "eps_low": 0.1},
+}
+HISPO_CLASSES = ("HiSPO",)
+
+
+def _family(config) -> str:
+    data = config.get("data") or {}
+    if data.get("stream"):
+        return parse_stream(data["stream"])[0].family
+    return parse_task(data.get("task") or "pointmaze-umaze").family
+
+
+def _set(config, key: str, value) -> None:
+    """Set a dotted key of a parsed configuration, making the dicts on the way."""
+    *parents, last = key.split(".")
+    node = config
+    for part in parents:
+        if node.get(part) is None:
+            node[part] = {}
+        node = node[part]
+    node[last] = value
+
+
+def apply_preset(config, name: str | None) -> None:
+    """Write preset ``name``'s settings into ``config`` (a parsed ``fit`` configuration)."""
+    if name is None:
+        return
+    if name not in PRESETS:
+        raise ConfigError(f"--preset {name}: unknown preset; the presets are {', '.join(PRESETS)}")
+    family = _family(config)
+    model = str((config.get("model") or {}).get("class_path", "")).rsplit(".", 1)[-1]
+    is_hispo = model in HISPO_CLASSES
+    for key, value in PAPER_COMMON:
+        _set(config, key, value)
+    high, low = PAPER_HISPO_WIDTHS.get(family, PAPER_WIDTHS) if is_hispo else PAPER_WIDTHS
+    _set(config, "model.init_args.backbone.high_hidden", high)
+    _set(config, "model.init_args.backbone.low_hidden", low)
+    _set(config, "data.batch_size", PAPER_BATCH[family])
+    if is_hispo:
+        for key, value in PAPER_HISPO_MODEL:
+            _set(config, key, value)
+    for callback in (config.get("trainer") or {}).get("callbacks") or []:
+        settings = PAPER_CALLBACKS.get(str(callback.get("class_path", "")).rsplit(".", 1)[-1])
+        for key, value in (settings or {}).items():
+            callback["init_args"][key] = value
