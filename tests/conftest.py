@@ -1,5 +1,6 @@
-"""Shared fixtures: an isolated Minari store, one torch thread by default, one tiny generated
-PointMaze dataset and one finished tiny stream."""
+"""Shared fixtures: an isolated Minari store, one torch thread by default
+(``HISPO_PL_TEST_THREADS``), one tiny generated PointMaze dataset and one finished tiny
+stream."""
 
 from __future__ import annotations
 
@@ -35,21 +36,25 @@ def tiny_umaze(minari_home):
 
 
 @pytest.fixture(scope="session", autouse=True)
-def _one_thread_session():
+def _suite_threads():
     """One torch thread for the whole session, set before any fixture builds a model: tiny
-    networks on a 2-core machine run several times (up to ~100x) faster without intra-op
-    threads competing for the cores. A test that wants more threads sets them itself
-    (``torch.set_num_threads``, ``--num_threads``); :func:`_restore_threads` undoes it."""
+    networks on a 2-core machine run many times faster without intra-op threads competing for
+    the cores. ``HISPO_PL_TEST_THREADS=N`` runs the suite at N threads instead (0: the count
+    torch picks), to check that no result depends on it. A test that wants more threads sets
+    them itself (``torch.set_num_threads``, ``--num_threads``); :func:`_restore_threads`
+    undoes it."""
     import torch
 
     before = torch.get_num_threads()
-    torch.set_num_threads(1)
+    threads = int(os.environ.get("HISPO_PL_TEST_THREADS", "1"))
+    if threads > 0:
+        torch.set_num_threads(threads)
     yield
     torch.set_num_threads(before)
 
 
 @pytest.fixture(autouse=True)
-def _restore_threads(_one_thread_session):
+def _restore_threads(_suite_threads):
     """After each test, the thread count it started with (one), whatever the test set: a
     ``hispo-pl fit --num_threads 2`` inside a test leaves torch at two threads otherwise."""
     import torch
@@ -58,17 +63,6 @@ def _restore_threads(_one_thread_session):
     yield
     if torch.get_num_threads() != before:
         torch.set_num_threads(before)
-
-
-@pytest.fixture(scope="module")
-def one_thread(_one_thread_session):
-    """The session's default made explicit: a module that names it still runs at one thread."""
-    import torch
-
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 @pytest.fixture(scope="session")

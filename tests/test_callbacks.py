@@ -80,7 +80,7 @@ def _fresh_module(seed: int = 0) -> HiSPO:
 
 
 @pytest.fixture(scope="module")
-def first_task(tiny_umaze, tmp_path_factory, one_thread):
+def first_task(tiny_umaze, tmp_path_factory):
     """Task 0 of the stream, trained once: its run dir, callbacks, module and checkpoint."""
     root = tmp_path_factory.mktemp("task0")
     module = _fresh_module()

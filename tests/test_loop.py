@@ -67,7 +67,7 @@ def _loop(run_dir, stream=STREAM, stop_at: int | None = None, seed: int | None =
 
 
 @pytest.fixture(scope="module")
-def uninterrupted(tiny_umaze, tmp_path_factory, one_thread):
+def uninterrupted(tiny_umaze, tmp_path_factory):
     run_dir = tmp_path_factory.mktemp("run_a")
     loop = _loop(run_dir)
     results = loop.run()

@@ -3,14 +3,11 @@ method and stream configs say, and kept on resume like any other setting."""
 
 from __future__ import annotations
 
-import pytest
 import yaml
 from helpers import TINY_STREAM, fit_tiny_stream, tiny_stream_args
 
 from hispo_pl.cli import main
 from hispo_pl.presets import PAPER_CALLBACKS, PAPER_COMMON, apply_preset
-
-pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _get(config: dict, key: str):
