@@ -7,6 +7,8 @@
 PYTHON ?= python3
 VENV ?= .venv
 TORCH_PIN ?= torch==2.13.0
+# test processes side by side, one torch thread each (0: one process)
+TEST_WORKERS ?= 2
 BIN := $(VENV)/bin
 
 .PHONY: demo test test-all lint bench clean
@@ -22,10 +24,10 @@ demo: $(BIN)/hispo-pl
 	$(BIN)/hispo-pl fit --config configs/demo.yaml --config configs/methods/hispo.yaml
 
 test: $(BIN)/hispo-pl
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 test-all: $(BIN)/hispo-pl
-	$(BIN)/python -m pytest -q -m "slow or not slow"
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "slow or not slow"
 
 lint: $(BIN)/hispo-pl
 	$(BIN)/ruff check .

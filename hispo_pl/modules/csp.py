@@ -169,6 +169,7 @@ class CSP(CSPO):
             )
         out = super().losses(batch)
         out["loss_bc"] = out["loss"]
+        # the critic reads the data's maze positions: it values the policies, it does not act
         obs, pos, goal = batch["observation"], batch["position"], batch["goal"]
         x = high_input(obs, pos, goal)
         next_x = high_input(batch["next_observation"], batch["next_position"], goal)
