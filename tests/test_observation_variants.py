@@ -1,6 +1,9 @@
 """An observation variant (IO, PO) reaches the agent under every input option a run accepts:
 in the same state, an IO/PO task's policy inputs differ from its N task's; and a choice of
-inputs under which no policy would tell them apart is refused when the run is configured."""
+inputs under which no policy would tell them apart is refused when the run is configured.
+
+The exact comparisons here are made within one process on the same data: a variant only
+negates, shifts and slices values, so equal inputs are equal bit for bit on any CPU."""
 
 from __future__ import annotations
 
