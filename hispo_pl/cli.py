@@ -81,19 +81,25 @@ class HispoCLI(LightningCLI):
             parser.link_arguments(f"data.{name}", target, apply_on="instantiate")
 
     def _parse_ckpt_path(self) -> None:
-        """Check ``--ckpt_path`` before Lightning reads its hyperparameters: a stream refuses
-        it, and an unreadable file is a user error rather than a traceback."""
+        """Take the model's hyperparameters from ``--ckpt_path`` as LightningCLI does, but
+        safely: a stream refuses the flag, an unreadable file is a user error rather than a
+        traceback, and a class the file names is never imported."""
         if not self.config.get("subcommand"):
             return
         config = self.config[self.config.subcommand]
         ckpt_path = config.get("ckpt_path")
         if ckpt_path and (config.get("data") or {}).get("stream"):
             validate_config(config.as_dict())  # says how a stream resumes
-        if ckpt_path and Path(ckpt_path).is_file():
-            from .modules.hbc import read_checkpoint
+        if not (ckpt_path and Path(ckpt_path).is_file()):
+            return
+        from .modules.hbc import checkpoint_model_hparams, read_checkpoint
 
-            read_checkpoint(ckpt_path)
-        super()._parse_ckpt_path()
+        # Lightning's own version hands the file's ``_class_path`` to the parser, which imports
+        # it; here only the methods already imported can be named
+        hparams = checkpoint_model_hparams(read_checkpoint(ckpt_path), ckpt_path)
+        if hparams:
+            update = {self.config.subcommand: {"model": hparams}}
+            self.config = self.parser.parse_object(update, self.config)
 
     def before_instantiate_classes(self) -> None:
         config = self.config.get(self.subcommand, self.config)

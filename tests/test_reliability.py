@@ -89,6 +89,42 @@ def test_checkpoint_class_string_is_never_imported(tmp_path, monkeypatch, capsys
     assert "not a readable hispo-pl checkpoint" in err and "planted_module.X" in err
 
 
+@pytest.mark.parametrize(
+    "hparams",
+    [
+        {"_class_path": "planted_module.X", "lr": 1.0},
+        {"_class_path": "hispo_pl.modules.HiSPO", "backbone": {"class_path": "planted_module.X"}},
+    ],
+    ids=["model", "nested"],
+)
+def test_fit_ckpt_path_never_imports_what_the_checkpoint_names(
+    tmp_path, monkeypatch, capsys, hparams
+):
+    planted = tmp_path / "planted_module.py"
+    ran = tmp_path / "ran"
+    planted.write_text(f"open({str(ran)!r}, 'w').close()\nclass X: pass\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    ckpt = tmp_path / "crafted.ckpt"
+    torch.save({"state_dict": {}, "hyper_parameters": hparams}, ckpt)
+    config = str(Path(__file__).parents[1] / "configs" / "hbc" / "pointmaze-umaze.yaml")
+    assert main(["fit", "--config", config, "--ckpt_path", str(ckpt)]) == 2
+    assert not ran.exists(), "the checkpoint made hispo-pl import a module"
+    err = capsys.readouterr().err.strip()
+    assert "not a readable hispo-pl checkpoint" in err and "planted_module.X" in err
+    assert len(err.splitlines()) == 1, err
+
+
+def test_a_real_checkpoint_names_an_imported_method(tiny_run):
+    from hispo_pl.modules import NetworkPerTask
+    from hispo_pl.modules.hbc import checkpoint_model_hparams, imported_method, read_checkpoint
+
+    path = tiny_run[1] / "task_02.ckpt"
+    hparams = checkpoint_model_hparams(read_checkpoint(path), path)
+    assert imported_method(hparams["class_path"]) is NetworkPerTask
+    assert "_instantiator" not in hparams["dict_kwargs"] and "backbone" in hparams["dict_kwargs"]
+    assert imported_method("os.path") is None and imported_method("torch.nn.Linear") is None
+
+
 def test_corrupt_truncated_and_unsafe_checkpoints_get_one_line(tiny_run, tmp_path, capsys):
     good = (tiny_run[1] / "task_02.ckpt").read_bytes()
     (tmp_path / "truncated.ckpt").write_bytes(good[: len(good) // 2])

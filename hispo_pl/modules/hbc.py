@@ -312,6 +312,49 @@ def read_checkpoint(path: str | Path) -> dict:
     return checkpoint
 
 
+def imported_method(class_path: str) -> type[GoalConditionedBC] | None:
+    """The method class ``class_path`` names (``package.module.Name``, as a config or
+    LightningCLI's ``_class_path`` spells it), if its module is already imported and the name
+    is a :class:`GoalConditionedBC` subclass; else None. Nothing is imported: a checkpoint can
+    only pick among the methods hispo-pl or the user's own config already loaded."""
+    import sys
+
+    module_name, _, name = class_path.rpartition(".")
+    found = getattr(sys.modules.get(module_name), name, None) if module_name else None
+    if isinstance(found, type) and issubclass(found, GoalConditionedBC):
+        return found
+    return None
+
+
+def checkpoint_model_hparams(checkpoint: dict, path: str | Path) -> dict:
+    """A checkpoint's model hyperparameters in the form LightningCLI parses
+    (``class_path`` + ``dict_kwargs``; empty if the file stores none), once every class they
+    name has been checked with :func:`imported_method`.
+
+    Raises:
+        CheckpointError: a class path that is not an imported hispo-pl method, at any depth."""
+    hparams = dict(checkpoint.get("hyper_parameters") or {})
+    hparams.pop("_instantiator", None)  # LightningCLI's own hook, never taken from a file
+    named = [hparams["_class_path"]] if "_class_path" in hparams else []
+    todo = [v for k, v in hparams.items() if k != "_class_path"]
+    while todo:
+        value = todo.pop()
+        if isinstance(value, dict):
+            named.extend(v for k, v in value.items() if k in ("class_path", "_class_path"))
+            todo.extend(value.values())
+        elif isinstance(value, (list, tuple)):
+            todo.extend(value)
+    for class_path in named:
+        if not isinstance(class_path, str) or imported_method(class_path) is None:
+            raise CheckpointError(
+                f"not a readable hispo-pl checkpoint: {path} names the class {class_path!r}, "
+                "which is not one of hispo-pl's methods (nothing it names is imported)"
+            )
+    if "_class_path" in hparams:
+        hparams = {"class_path": hparams.pop("_class_path"), "dict_kwargs": hparams}
+    return hparams
+
+
 def method_registry() -> dict[str, type[GoalConditionedBC]]:
     """hispo-pl's own methods by the name a checkpoint stores (``module.QualName``): every
     subclass of :class:`GoalConditionedBC` defined in the ``hispo_pl`` package. Only already
