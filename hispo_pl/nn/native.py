@@ -8,19 +8,22 @@ every pass reads activations saved long before. Same maths as the aten kernels (
 
 The library is compiled once per machine (``-march=native``, the vector ``erff``/``expf`` of
 glibc's libmvec) into ``$HISPO_PL_CACHE`` (default ``~/.cache/hispo-pl``), keyed by the
-source, the flags, the compiler and the CPU. Without a C compiler, off glibc, or with
-``HISPO_PL_NATIVE=0``, :func:`library` returns ``None`` and :mod:`~hispo_pl.nn.fast` keeps the
-aten kernels.
+source, the flags, the compiler and the CPU, in a directory no other user can write; it is
+loaded only while its bytes match the digest written beside it. Without a C compiler, off
+glibc, or with ``HISPO_PL_NATIVE=0``, :func:`library` returns ``None`` and
+:mod:`~hispo_pl.nn.fast` keeps the aten kernels.
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import hashlib
 import logging
 import os
 import platform
 import shutil
+import stat
 import subprocess
 import tempfile
 from pathlib import Path
@@ -64,17 +67,24 @@ def _cpu_key() -> str:
     return "\n".join(sorted({line for line in info if line.split(":")[0].strip() in wanted}))
 
 
+COMPILE_TIMEOUT_S = 30  # the build takes about a second; a hung compiler costs no more
+
+
 def build(compiler: str | None = None, directory: Path | None = None) -> Path | None:
     """Compile ``fused.c`` unless this machine's library is there; its path, or ``None`` when
     there is no compiler or the build fails (the reason is logged). Without ``directory``, in
-    :func:`cache_dir`, or in the temporary directory where that is not writable."""
+    :func:`cache_dir`, or in the temporary directory where that is not writable or not ours.
+
+    Only a directory this user owns and no one else can write is used (created ``0700``), and a
+    library found there is used only if its bytes match the digest written when it was built;
+    otherwise it is rebuilt. So no other local user can plant the code this process loads."""
     compiler = compiler or os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
     if compiler is None:
         log.info("no C compiler found: the fused kernels are off")
         return None
     try:
         version = subprocess.run(
-            [compiler, "--version"], capture_output=True, text=True, timeout=30
+            [compiler, "--version"], capture_output=True, text=True, timeout=10
         ).stdout
     except (OSError, subprocess.SubprocessError) as err:
         log.info("C compiler %s unusable (%s): the fused kernels are off", compiler, err)
@@ -86,32 +96,80 @@ def build(compiler: str | None = None, directory: Path | None = None) -> Path | 
     for where in [Path(directory)] if directory is not None else [cache_dir(), fallback]:
         path = where / f"fused-{key}.so"
         try:
-            if path.exists() or _compile(compiler, path):
+            why = _private_dir(where)
+            if why is not None:
+                log.warning("not using %s for the fused kernels: %s", where, why)
+                continue
+            if _intact(path) or _compile(compiler, path):
                 return path
+        except subprocess.TimeoutExpired:
+            log.warning("the C compiler %s hung: the fused kernels are off", compiler)
+            return None
         except (OSError, subprocess.SubprocessError) as err:
             log.info("building %s in %s failed (%s)", SOURCE, where, err)
         else:
             return None  # the compiler refused the source: another directory will not help
-    log.info("no writable directory for the fused kernels: they are off")
+    log.info("no private writable directory for the fused kernels: they are off")
     return None
 
 
+def untrusted(path: Path) -> str | None:
+    """Why code under ``path`` could have been written by someone else, or None: it must not
+    be a link, must belong to this user, and no group or other user may write it."""
+    info = path.lstat()
+    if stat.S_ISLNK(info.st_mode):
+        return "it is a symbolic link"
+    if info.st_uid != os.getuid():
+        return f"it belongs to user id {info.st_uid}"
+    if info.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        return f"others can write it (mode {stat.S_IMODE(info.st_mode):o})"
+    return None
+
+
+def _private_dir(where: Path) -> str | None:
+    """Make ``where`` (mode ``0700``) if missing; why it cannot hold our library, or None."""
+    if not os.path.lexists(where):
+        where.parent.mkdir(parents=True, exist_ok=True)
+        with contextlib.suppress(FileExistsError):  # a concurrent build made it: check it
+            os.mkdir(where, 0o700)
+    if not where.is_dir():
+        raise NotADirectoryError(f"{where} is not a directory")
+    return untrusted(where)
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _intact(path: Path) -> bool:
+    """Whether ``path`` is a library this user built: its own file, and its bytes those of the
+    digest beside it (a truncated or corrupt library would crash the process when loaded)."""
+    stamp = path.with_suffix(".sha256")
+    if not (path.is_file() and stamp.is_file()) or untrusted(path) or untrusted(stamp):
+        return False
+    return stamp.read_text().strip() == _digest(path)
+
+
 def _compile(compiler: str, path: Path) -> bool:
-    """Build the library at ``path`` (atomically: a concurrent build of it is harmless);
-    whether the compiler succeeded (its errors are logged)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Build the library at ``path`` with its digest beside it (atomically: a concurrent build
+    of it is harmless); whether the compiler succeeded (its errors are logged)."""
     with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
         out = Path(tmp) / path.name
         done = subprocess.run(
             [compiler, *FLAGS, str(SOURCE), "-o", str(out), *LIBS],
             capture_output=True,
             text=True,
-            timeout=300,
+            timeout=COMPILE_TIMEOUT_S,
         )
         if done.returncode != 0:
             log.info("building %s failed: the fused kernels are off\n%s", SOURCE, done.stderr)
             return False
+        os.chmod(out, 0o755)  # whatever the umask: writable by this user alone
+        stamp = Path(tmp) / "digest"
+        stamp.write_text(_digest(out))
+        os.chmod(stamp, 0o644)
         os.replace(out, path)
+        os.replace(stamp, path.with_suffix(".sha256"))
     return True
 
 
