@@ -55,6 +55,33 @@ minari.create_dataset_from_buffers = _create_then_hang
     assert not list((tmp_path / ".staging").glob("*")), "staging left behind"
 
 
+def test_overwrite_killed_while_collecting_keeps_the_old_dataset(tmp_path, monkeypatch, capsys):
+    from hispo_pl.data.datasets import dataset_problem, load_episodes
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    assert main(["data", "generate", "pointmaze-umaze", "--episodes", "2"]) == 0
+    capsys.readouterr()
+    marker = tmp_path / "collected"
+    # the new episodes are collected, and the process is killed while Minari writes them
+    prelude = f"""
+import pathlib, time, minari
+def _hang(**kwargs):
+    pathlib.Path({str(marker)!r}).touch()
+    time.sleep(600)
+minari.create_dataset_from_buffers = _hang
+"""
+    argv = ["data", "generate", "pointmaze-umaze", "--episodes", "3", "--overwrite"]
+    proc = spawn(cli_source(argv, prelude))
+    wait_for(marker, proc)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert dataset_problem("hispo/pointmaze-umaze-expert-v0") is None
+    assert load_episodes("pointmaze-umaze-N[2]", generate_if_missing=False).n_episodes == 2
+    assert main(["data", "generate", *argv[2:]]) == 0  # the rerun finishes the new one
+    assert json.loads(capsys.readouterr().out)["episodes"] == 3
+    assert not list((tmp_path / ".staging").glob("*")), "staging left behind"
+
+
 def test_truncated_dataset_counts_as_missing_and_is_rebuilt(tmp_path, monkeypatch, capsys):
     from hispo_pl.data.datasets import dataset_path, dataset_problem
     from hispo_pl.data.generation import generate_dataset

@@ -116,6 +116,16 @@ def package_requirements() -> list[str]:
     return pins
 
 
+def _swap_in(new: Path, final: Path, old: Path) -> None:
+    """Put the complete dataset ``new`` at ``final``, moving the one it replaces to ``old``
+    first (a directory cannot be replaced in one rename) and deleting it only afterwards."""
+    shutil.rmtree(old, ignore_errors=True)
+    if final.exists():
+        os.replace(final, old)
+    os.replace(new, final)
+    shutil.rmtree(old, ignore_errors=True)
+
+
 def generate_dataset(
     name: str,
     *,
@@ -134,7 +144,8 @@ def generate_dataset(
     episode is seeded by (seed, index) and staged to disk as soon as it is done, so an
     interrupted run continues where it stopped with identical data. The dataset is written
     into a build directory beside the staged episodes and moved into place only once
-    complete; an incomplete one found in place (:func:`dataset_problem`) is rebuilt.
+    complete (with ``overwrite``, the dataset it replaces stays in use until then); an
+    incomplete one found in place (:func:`dataset_problem`) is rebuilt.
     """
     import minari
     from minari.data_collector import EpisodeBuffer
@@ -155,10 +166,9 @@ def generate_dataset(
                 "or leave the settings at the stored ones to use it as it is"
             )
         return dataset_id
-    if problem is None:
-        minari.delete_dataset(dataset_id)
-    elif problem != "missing":  # cut short by a kill while it was written: rebuild it
+    if problem not in (None, "missing"):  # cut short by a kill while it was written
         shutil.rmtree(final)
+    # with --overwrite the stored dataset stays usable until the new one is complete
     steps = task.defaults.max_episode_steps
     behaviour = family_behaviour(task)
     env = behaviour.make_collection_env(task)
@@ -226,9 +236,7 @@ def generate_dataset(
     namespace_meta = build / NAMESPACE / "namespace_metadata.json"
     if namespace_meta.exists() and not (final.parent / namespace_meta.name).exists():
         shutil.copy(namespace_meta, final.parent / namespace_meta.name)
-    if final.exists():  # an incomplete copy left by an older version
-        shutil.rmtree(final)
-    os.replace(build / dataset_id, final)
+    _swap_in(build / dataset_id, final, dataset_path("") / ".staging" / f"replaced-{name}")
     shutil.rmtree(build, ignore_errors=True)
     shutil.rmtree(staging, ignore_errors=True)
     return dataset_id
