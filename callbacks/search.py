@@ -4,6 +4,7 @@ decides between. The candidates are raced by :mod:`hispo_pl.search`."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -13,8 +14,9 @@ from torch import Tensor
 from typing_extensions import override
 
 from ..decisions import extended_subspace_candidates, previous_subspace_candidates
+from ..errors import TrainingDivergedError
 from ..nn import eval_mode
-from ..rundir import RunDir
+from ..rundir import RunDir, task_label
 from ..search import RaceOutcome, race_subspace, resolve_precision
 from .protocols import require_subspace_policy
 
@@ -40,6 +42,20 @@ def _refine(result: SearchResult, candidates: Tensor, race: RaceOutcome) -> None
     if race.best_loss < result.l_curr:
         result.l_trained = result.l_curr
         result.l_curr, result.alpha_curr = race.best_loss, candidates[race.best].tolist()
+
+
+def refuse_non_finite(results: dict[str, SearchResult], task_index: int) -> None:
+    """Stop the task, rather than decide on it, when a search loss is NaN or infinite (every
+    comparison with NaN is false, so a decision on one would look like a real one)."""
+    for name, res in results.items():
+        for label, value in (("L_curr", res.l_curr), ("L_prev", res.l_prev)):
+            if value is not None and not math.isfinite(value):
+                raise TrainingDivergedError(
+                    f"the search at the end of task {task_label(task_index)} scored {label} = "
+                    f"{value} on the {name} subspace's held-out episodes: no decision is taken "
+                    "on it and nothing of this task was saved. Check the task's data and lower "
+                    "the learning rate (--model.init_args.optim.lr)."
+                )
 
 
 def window_start(max_steps: int, window: float) -> int | None:
@@ -158,6 +174,7 @@ class DirichletEvaluation(L.Callback):
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         results = self._run_search(trainer, pl_module, train_losses=True)
+        refuse_non_finite(results, pl_module.task_index)
         for name, res in results.items():
             if name in self._l_window and res.l_curr > 0:
                 res.l_window = self._l_window[name]

@@ -217,7 +217,6 @@ def _quiet_known_warnings() -> None:
         r".*IterableDataset.*has `__len__` defined.*",
         r".*does not have many workers.*",
         r".*treespec.*LeafSpec.*",
-        r".*AdroitHand.*",
         r".*litlogger.*",
         r".*LightningCLI's args parameter.*",
     ):

@@ -217,7 +217,7 @@ def test_a_task_reads_its_episodes_once(tiny_umaze, monkeypatch):
 
     reads = []
     real = datasets.episodes_to_arrays
-    monkeypatch.setattr(datasets, "episodes_to_arrays", lambda eps: reads.append(1) or real(eps))
+    monkeypatch.setattr(datasets, "episodes_to_arrays", lambda *a: reads.append(1) or real(*a))
     dm = TaskDataModule(task=f"pointmaze-umaze-N[{TINY_EPISODES}]", holdout=0.0)
     dm.prepare_data()
     assert reads == []

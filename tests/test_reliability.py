@@ -9,6 +9,7 @@ import os
 import signal
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from helpers import tiny_stream_args
@@ -292,6 +293,45 @@ def test_nan_training_stops_with_step_and_lr_and_saves_nothing(tiny_umaze, tmp_p
     assert "--model.init_args.optim.lr" in err and "Traceback" not in err
     run_dir = stream_dir(tmp_path)
     assert not list(run_dir.glob("*.ckpt")) and not (run_dir / "results.json").exists()
+
+
+def test_non_finite_data_is_refused_when_it_loads(tmp_path, monkeypatch, capsys):
+    import h5py
+
+    from hispo_pl.data.datasets import DatasetValuesError, dataset_path, load_episodes
+    from hispo_pl.data.generation import generate_dataset
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "data"))
+    dataset_id = generate_dataset("pointmaze-umaze", episodes=3, progress=False)
+    with h5py.File(dataset_path(dataset_id) / "data" / "main_data.hdf5", "r+") as f:
+        f["episode_1/observations/observation"][7, 2] = np.nan
+    with pytest.raises(DatasetValuesError, match=r"episode 1 holds 1 NaN .* in observation"):
+        load_episodes("pointmaze-umaze-N[3]", generate_if_missing=False)
+    assert main(tiny_stream_args("hispo", tmp_path / "runs", ["pointmaze-umaze-N[3]"])) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("hispo-pl: error: the data of hispo/pointmaze-umaze-expert-v0")
+    assert "first at step 7" in err and "Traceback" not in err and "learning rate" not in err
+    assert not list((tmp_path / "runs").rglob("*.ckpt"))
+
+
+def test_a_non_finite_search_loss_stops_the_task(tiny_umaze, tmp_path, monkeypatch, capsys):
+    from hispo_pl.callbacks import search
+
+    real = search.race_subspace
+
+    def nan_race(*args, **kwargs):
+        outcome = real(*args, **kwargs)
+        return search.RaceOutcome(outcome.survivors, outcome.losses * np.nan, None)
+
+    monkeypatch.setattr(search, "race_subspace", nan_race)
+    assert main(tiny_stream_args("hispo", tmp_path, ["pointmaze-umaze-N[3]"])) == 2
+    err = capsys.readouterr().err.strip()
+    assert "the search at the end of task 1 scored L_curr = nan" in err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    run_dir = stream_dir(tmp_path)
+    assert not list(run_dir.glob("*.ckpt")) and not (run_dir / "results.json").exists()
+    decisions = run_dir / "decisions.jsonl"
+    assert not decisions.exists() or "NaN" not in decisions.read_text()
 
 
 def test_a_non_finite_state_is_never_saved(tmp_path):

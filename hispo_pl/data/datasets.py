@@ -152,12 +152,34 @@ def goal_segment_ends(desired_goal: np.ndarray) -> np.ndarray:
     return np.repeat(bounds, np.diff(np.append(starts, n)))
 
 
-def episodes_to_arrays(episodes) -> EpisodeArrays:
+class DatasetValuesError(UserError, ValueError):
+    """A dataset holding NaN or infinite values, which would train and decide on garbage."""
+
+
+def check_finite(dataset: str, episode: int, field: str, values: np.ndarray) -> None:
+    """Refuse an episode's ``field`` unless every value is finite, naming where it is not."""
+    bad = ~np.isfinite(values)
+    if bad.any():
+        step = int(np.argwhere(bad)[0][0])
+        raise DatasetValuesError(
+            f"the data of {dataset} is not usable: episode {episode} holds {int(bad.sum())} NaN "
+            f"or infinite value(s) in {field} (first at step {step}). Regenerate the dataset "
+            "(hispo-pl data generate NAME --overwrite) or drop the episode from it."
+        )
+
+
+def episodes_to_arrays(episodes, dataset: str = "the dataset") -> EpisodeArrays:
     """Flatten Minari episodes (dict observations with ``observation`` and ``achieved_goal``;
-    ``desired_goal``, when present, marks goal segments)."""
+    ``desired_goal``, when present, marks goal segments), refusing any that is not finite
+    (:class:`DatasetValuesError`, naming ``dataset``, the episode and the field)."""
     obs, pos, act, end, idx, seg = [], [], [], [], [], []
     start = 0
-    for ep in episodes:
+    for k, ep in enumerate(episodes):
+        fields = {"actions": ep.actions, **ep.observations}
+        for field in ("observation", "achieved_goal", "desired_goal", "actions"):
+            if fields.get(field) is not None:
+                values = np.asarray(fields[field], dtype=np.float64)
+                check_finite(dataset, getattr(ep, "id", k), field, values)
         o = np.asarray(ep.observations["observation"], dtype=np.float32)
         n = len(o)  # T + 1
         a = np.zeros((n, np.asarray(ep.actions).shape[-1]), dtype=np.float32)
@@ -185,7 +207,7 @@ def load_episodes(source: str | Task, *, generate_if_missing: bool = True) -> Ep
     downloaded when online. Variants are not applied here: see :meth:`EpisodeArrays.for_task`.
     """
     ds, episodes = open_dataset(source, generate_if_missing=generate_if_missing)
-    return episodes_to_arrays(ds.iterate_episodes(episodes))
+    return episodes_to_arrays(ds.iterate_episodes(episodes), ds.spec.dataset_id)
 
 
 def open_dataset(source: str | Task, *, generate_if_missing: bool = True):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 
 import gymnasium as gym
@@ -11,6 +12,18 @@ from .family import family_behaviour
 from .wrappers import VariantWrapper
 
 _robotics_registered = False
+
+
+def _drop_adroit_notice() -> None:
+    """gymnasium-robotics prints a notice on import about its Adroit hands' rewards, which no
+    hispo-pl task uses; it would stand in every run's output and above every error."""
+    with contextlib.suppress(ImportError):
+        from farama_notifications import notifications
+
+        notifications.pop("gymnasium_robotics", None)
+
+
+_drop_adroit_notice()
 
 
 def register_tasks() -> None:
