@@ -247,13 +247,7 @@ class ContinualLoop:
         fresh = {"stream": self.stream, "rows": [], "wall_time_s": [], "phase_time_s": []}
         if self.fingerprint is not None:
             fresh["fingerprint"] = self.fingerprint
-        try:
-            progress = self.run_dir.read_progress()
-        except ValueError as err:
-            raise RunDirError(
-                f"{self.run_dir.progress_file} is not readable JSON ({err}); move the run "
-                "directory away to start over"
-            ) from None
+        progress = self.run_dir.read_progress()  # a malformed file: RunDirError, named
         if progress is None:
             return fresh
         if progress["stream"] != self.stream:

@@ -27,11 +27,12 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
 
+from .errors import RunDirError
 from .io import atomic_write_text
 
 
@@ -47,6 +48,44 @@ def task_label(index: int) -> int:
 
 def _task_index(label: str) -> int:
     return int(label) - 1
+
+
+def _read_object(path: Path, holds: str) -> dict:
+    """The JSON object in ``path``, which ``holds`` what is named (for the message).
+
+    Raises:
+        RunDirError: the file is not JSON, or its JSON is not an object."""
+    try:
+        value = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as err:
+        raise RunDirError(f"{path} is not readable JSON ({err}); it should hold {holds}") from None
+    if not isinstance(value, dict):
+        raise RunDirError(
+            f"{path} holds a JSON {type(value).__name__}, not an object; it should hold {holds}"
+        )
+    return value
+
+
+def _require_lists(path: Path, record: dict, keys: Sequence[str], holds: str) -> None:
+    missing = [k for k in keys if not isinstance(record.get(k), list)]
+    if missing:
+        raise RunDirError(f"{path} has no list {', '.join(missing)}; it should hold {holds}")
+
+
+def results_problem(results: dict) -> str | None:
+    """Why a stream's ``results.json`` cannot be tabulated, or None: R must be a square
+    matrix with one row per task of the stream it names."""
+    R, stream = results.get("R"), results.get("stream")
+    if not isinstance(R, list) or not all(isinstance(row, list) for row in R):
+        return "no matrix R"
+    if any(len(row) != len(R) for row in R):
+        return f"R is not square ({[len(row) for row in R]} entries in its {len(R)} rows)"
+    if not isinstance(stream, list) or len(stream) != len(R):
+        n = len(stream) if isinstance(stream, list) else "no"
+        return f"R has {len(R)} rows for a stream of {n} tasks"
+    if not all(v is None or isinstance(v, (int, float)) for row in R for v in row):
+        return "R holds values that are not numbers"
+    return None
 
 
 class RunDir:
@@ -149,11 +188,14 @@ class RunDir:
         """``progress.json``, or None before the first task started.
 
         Raises:
-            ValueError: the file is not readable JSON.
+            RunDirError: the file is not a JSON object with the lists ``stream`` and ``rows``.
         """
         if not self.progress_file.exists():
             return None
-        return json.loads(self.progress_file.read_text())
+        holds = "a stream's progress; move the run directory away to start over"
+        progress = _read_object(self.progress_file, holds)
+        _require_lists(self.progress_file, progress, ("stream", "rows"), holds)
+        return progress
 
     def stream_task(self, task: int) -> str | None:
         """The spec of task ``task`` (0-based) of the stream this directory runs, or ``None``
@@ -168,7 +210,16 @@ class RunDir:
         return self.results_file.exists()
 
     def read_results(self) -> dict:
-        return json.loads(self.results_file.read_text())
+        """``results.json``, checked to be tabulable (:func:`results_problem`).
+
+        Raises:
+            RunDirError: the file is not JSON, not an object, or its R does not fit its stream.
+        """
+        results = _read_object(self.results_file, "a finished stream's results")
+        problem = results_problem(results)
+        if problem is not None:
+            raise RunDirError(f"{self.results_file} cannot be tabulated: {problem}")
+        return results
 
     def write_results(self, results: dict) -> None:
         atomic_write_text(self.results_file, json.dumps(results, indent=1))
@@ -178,16 +229,10 @@ class RunDir:
 
     def read_decisions(self) -> list[dict]:
         """Every record of ``decisions.jsonl`` in order (none when absent); a line cut by a
-        kill is skipped."""
+        kill, or one that is not a JSON object, is skipped."""
         if not self.decisions_file.exists():
             return []
-        records = []
-        for line in self.decisions_file.read_text().splitlines():
-            try:
-                records.append(json.loads(line))
-            except ValueError:
-                continue
-        return records
+        return [r for r in map(_decision, self.decisions_file.read_text().splitlines()) if r]
 
     def append_decisions(self, records: Iterable[dict]) -> None:
         self.path.mkdir(parents=True, exist_ok=True)
@@ -196,18 +241,15 @@ class RunDir:
                 f.write(json.dumps(record) + "\n")
 
     def keep_decisions(self, keep: Callable[[dict], bool]) -> None:
-        """Rewrite ``decisions.jsonl`` with the records ``keep`` accepts (cut lines dropped);
-        the file is left alone when nothing changes."""
+        """Rewrite ``decisions.jsonl`` with the records ``keep`` accepts (unreadable lines
+        dropped); the file is left alone when nothing changes."""
         if not self.decisions_file.exists():
             return
         lines = self.decisions_file.read_text().splitlines(keepends=True)
         kept = []
         for line in lines:
-            try:
-                record = json.loads(line)
-            except ValueError:
-                continue
-            if keep(record):
+            record = _decision(line)
+            if record is not None and keep(record):
                 kept.append(line if line.endswith("\n") else line + "\n")
         if kept != lines:
             atomic_write_text(self.decisions_file, "".join(kept))
@@ -228,7 +270,7 @@ class RunDir:
         return out
 
     def read_result(self) -> dict:
-        return json.loads(self.result_file.read_text())
+        return _read_object(self.result_file, "a single-task fit's evaluation")
 
     def write_result(self, result: dict) -> None:
         atomic_write_text(self.result_file, json.dumps(result, indent=2) + "\n")
@@ -237,7 +279,16 @@ class RunDir:
         """The benchmark's ``run.json`` (empty for a run it did not launch)."""
         if not self.run_record_file.exists():
             return {}
-        return json.loads(self.run_record_file.read_text())
+        return _read_object(self.run_record_file, "the benchmark's record of the run")
 
     def write_run_record(self, record: dict) -> None:
         atomic_write_text(self.run_record_file, json.dumps(record, indent=1))
+
+
+def _decision(line: str) -> dict | None:
+    """One ``decisions.jsonl`` record, or None for a line that is not a JSON object."""
+    try:
+        record = json.loads(line)
+    except ValueError:
+        return None
+    return record if isinstance(record, dict) else None

@@ -241,7 +241,7 @@ def test_write_report_from_disk_and_report_only(tmp_path, capsys):
         if r.meta:
             (run_dir / "run.json").write_text(json.dumps(r.meta))
     (tmp_path / "runs/hispo/seed7").mkdir()  # unfinished: no results.json, ignored
-    assert [(r.method, r.seed) for r in bm.load_records(tmp_path)] == [
+    assert [(r.method, r.seed) for r in bm.load_records(tmp_path)[0]] == [
         ("bc-ft1", 0),
         ("hispo", 0),
         ("hispo", 1),

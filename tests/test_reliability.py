@@ -452,3 +452,94 @@ def test_kill_outside_a_training_step_stops_the_stream(tiny_umaze, tmp_path):
     out, err = proc.communicate(timeout=30)
     assert proc.returncode == 128 + signal.SIGTERM, err[-3000:]
     assert "Rerun the same command to resume" in err and "Traceback" not in err
+
+
+# --- 5. the benchmark never mixes streams ---------------------------------------------------
+
+PM1_TASKS = [
+    "pointmaze-umaze-N[500]",
+    "pointmaze-large-N[500]",
+    "pointmaze-umaze-PO[500]",
+    "pointmaze-medium-IO[500]",
+]
+
+
+def _finished_run(out: Path, method: str, seed: int, tasks: list[str], R=None, meta=True) -> Path:
+    """A finished benchmark run on disk, as the benchmark leaves it."""
+    run = out / "runs" / method / f"seed{seed}"
+    run.mkdir(parents=True)
+    n = len(tasks)
+    R = R if R is not None else [[0.9 if j <= i else None for j in range(n)] for i in range(n)]
+    (run / "results.json").write_text(json.dumps({"stream": tasks, "R": R, "MEM": 1.0}))
+    if meta:
+        (run / "run.json").write_text(
+            json.dumps({"method": method, "seed": seed, "stream": "pointmaze-1"})
+        )
+    return run
+
+
+@pytest.mark.parametrize("meta", [True, False], ids=["run.json", "results.json"])
+def test_a_second_stream_into_one_out_is_refused_before_anything_is_written(tmp_path, capsys, meta):
+    out = tmp_path / "out"
+    run = _finished_run(out, "scn", 0, PM1_TASKS, meta=meta)
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    configs = str(Path(__file__).parents[1] / "configs")
+    argv = ["benchmark", "--stream", "pointmaze-2", "--methods", "scn", "--seeds", "1"]
+    assert main([*argv, "--out", str(out), "--config-dir", configs]) == 2
+    err = capsys.readouterr().err
+    assert "holds runs of another stream: scn/seed0" in err and "its own --out" in err
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert (run / "results.json").exists()
+
+
+def test_results_that_do_not_fit_their_stream_are_listed_not_tabulated(tmp_path, capsys):
+    _finished_run(tmp_path, "scn", 0, PM1_TASKS)
+    _finished_run(tmp_path, "ftn", 0, PM1_TASKS, R=[[1.0]])  # 1x1 R: PER 100 if tabulated
+    assert main(["benchmark", "--out", str(tmp_path), "--report-only"]) == 0
+    table = (tmp_path / "table.md").read_text()
+    assert "| scn |" in table.replace("**", "") and "| ftn |" not in table.replace("**", "")
+    assert "Runs that could not be read" in table and "R has 1 rows for a stream of 4" in table
+    assert "left out of the tables: ftn/seed0" in capsys.readouterr().out
+
+
+def test_a_report_over_two_streams_is_refused(tmp_path, capsys):
+    _finished_run(tmp_path, "scn", 0, PM1_TASKS)
+    _finished_run(tmp_path, "ftn", 0, PM1_TASKS[:3])
+    assert main(["benchmark", "--out", str(tmp_path), "--report-only"]) == 2
+    err = capsys.readouterr().err
+    assert "holds runs of different streams" in err and "Traceback" not in err
+
+
+# --- 8. malformed run files: named, never a traceback ----------------------------------------
+
+
+@pytest.mark.parametrize(
+    "text, said",
+    [
+        ("{}", "has no list stream, rows"),
+        ("[]", "JSON list, not an object"),
+        ('{"stream": ["pointmaze-umaze-N[3]"]}', "has no list rows"),
+        ("{", "not readable JSON"),
+    ],
+    ids=["empty-object", "list", "no-rows", "cut"],
+)
+def test_a_malformed_progress_file_is_named_on_resume(tiny_umaze, tmp_path, capsys, text, said):
+    run_dir = stream_dir(tmp_path)
+    run_dir.mkdir(parents=True)
+    (run_dir / "progress.json").write_text(text)
+    assert main(tiny_stream_args("ftn", tmp_path, ["pointmaze-umaze-N[3]"])) == 2
+    err = capsys.readouterr().err.strip()
+    assert str(run_dir / "progress.json") in err and said in err, err
+    assert "Traceback" not in err and (run_dir / "progress.json").read_text() == text
+
+
+@pytest.mark.parametrize("text", ["garbage", "{}", "[1, 2]", '{"R": "x", "stream": []}'])
+def test_malformed_results_are_listed_as_unreadable(tmp_path, capsys, text):
+    _finished_run(tmp_path, "scn", 0, PM1_TASKS)
+    bad = _finished_run(tmp_path, "ftn", 0, PM1_TASKS)
+    (bad / "results.json").write_text(text)
+    (bad.parent.parent / "scn" / "seed0" / "decisions.jsonl").write_text('[1]\n"x"\n{"task": 0}\n')
+    assert main(["benchmark", "--out", str(tmp_path), "--report-only"]) == 0
+    captured = capsys.readouterr()
+    assert "left out of the tables: ftn/seed0" in captured.out and "Traceback" not in captured.err
+    assert "Runs that could not be read" in (tmp_path / "table.md").read_text()

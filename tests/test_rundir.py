@@ -83,8 +83,8 @@ def test_progress_results_and_records_round_trip(tmp_path):
     assert run.read_progress() is None and run.read_run_record() == {}
     run.path.mkdir()
     run.write_progress({"stream": ["a"], "rows": []})
-    run.write_results({"R": [[1.0]]})
+    run.write_results({"stream": ["a"], "R": [[1.0]]})
     run.write_run_record({"method": "hispo"})
     assert run.read_progress()["stream"] == ["a"] and run.has_results()
-    assert run.read_results() == {"R": [[1.0]]}
+    assert run.read_results() == {"stream": ["a"], "R": [[1.0]]}
     assert run.read_run_record() == {"method": "hispo"}

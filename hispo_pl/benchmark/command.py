@@ -8,7 +8,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..errors import Interrupted
+from ..errors import Interrupted, RunDirError
 from ..io import atomic_write_text
 from . import plan
 from .configs import datasets_needed, prepare_datasets
@@ -94,8 +94,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                 problems += 1
                 print(f"[benchmark] {run.name}: invalid: {checked[run.method]}", file=sys.stderr)
         return 2 if problems else 0
-    out.mkdir(parents=True, exist_ok=True)
     stream_name = stream_config.stem
+    foreign = plan.foreign_runs(runs, stream_name)
+    if foreign:
+        raise RunDirError(
+            f"{out} holds runs of another stream: {', '.join(foreign)}. Run directories are "
+            f"named by method and seed, so give stream {stream_name} its own --out"
+        )
+    out.mkdir(parents=True, exist_ok=True)
     settings = {
         "stream": stream_name,
         "stream_config": str(stream_config),

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..rundir import RunDir
-from .configs import configured_max_steps
+from .configs import configured_max_steps, configured_value
 
 PLAN_FILE = "benchmark.json"
 RUNS_DIR = "runs"
@@ -184,6 +184,33 @@ def plan_runs(
             run_dir = out / RUNS_DIR / method / f"seed{seed}"
             runs.append(PlannedRun(method, seed, run_dir, (*FIT_MODULE, *args), steps, configs))
     return runs
+
+
+def planned_tasks(run: PlannedRun) -> list[str]:
+    """The task specs ``run`` trains, as its ``results.json`` spells them."""
+    from ..tasks import parse_stream
+
+    return [
+        str(task) for task in parse_stream(configured_value(run.configs, run.argv, "data.stream"))
+    ]
+
+
+def foreign_runs(runs: Sequence[PlannedRun], stream: str) -> list[str]:
+    """The planned run directories that already hold a run of another stream (by the
+    benchmark's ``run.json`` or by the tasks in ``results.json``), described for a message:
+    run dirs are named by method and seed only, so a second stream in the same ``--out``
+    would reuse or overwrite the first's runs."""
+    found = []
+    for run in runs:
+        run_dir = RunDir(run.run_dir)
+        old = run_dir.read_run_record().get("stream")
+        if old is not None and old != stream:
+            found.append(f"{run.name} ({old})")
+        elif run_dir.has_results():
+            tasks = run_dir.read_results()["stream"]
+            if tasks != planned_tasks(run):
+                found.append(f"{run.name} ({' -> '.join(tasks)})")
+    return found
 
 
 def pending_runs(runs: Sequence[PlannedRun], stream: str | None) -> list[PlannedRun]:

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import RunDirError
 from ..metrics import continual_metrics
 from ..rundir import RunDir
 from .plan import PLAN_FILE, RUNS_DIR
@@ -37,18 +38,34 @@ def finished_run_dirs(out: Path, results: str = RunDir.RESULTS) -> list[Path]:
     return sorted(p.parent for p in found)
 
 
-def load_records(out: Path) -> list[RunRecord]:
-    """Every finished run under ``out`` (:func:`finished_run_dirs`), sorted by method then seed."""
-    records = []
+def load_records(out: Path) -> tuple[list[RunRecord], list[str]]:
+    """Every finished run under ``out`` (:func:`finished_run_dirs`), sorted by method then
+    seed, and a line for each whose files cannot be read (kept out of the tables).
+
+    Raises:
+        RunDirError: the readable runs are of more than one stream."""
+    records, unreadable = [], []
     for seed_dir in finished_run_dirs(out):
         try:
             seed = int(seed_dir.name.removeprefix("seed"))
         except ValueError:
             continue
         run = RunDir(seed_dir)
-        meta, decisions, results = run.read_run_record(), run.read_decisions(), run.read_results()
-        records.append(RunRecord(seed_dir.parent.name, seed, results, meta, decisions))
-    return sorted(records, key=lambda r: (r.method, r.seed))
+        try:
+            meta, results = run.read_run_record(), run.read_results()
+        except RunDirError as err:
+            unreadable.append(f"{seed_dir.parent.name}/{seed_dir.name}: {err}")
+            continue
+        records.append(RunRecord(seed_dir.parent.name, seed, results, meta, run.read_decisions()))
+    streams = {tuple(r.results["stream"]): r for r in records}
+    if len(streams) > 1:
+        (a, first), (b, second) = list(streams.items())[:2]
+        raise RunDirError(
+            f"{out} holds runs of different streams: {first.method}/seed{first.seed} "
+            f"({' -> '.join(a)}) and {second.method}/seed{second.seed} ({' -> '.join(b)}); "
+            "a table compares runs of one stream, so keep each stream under its own folder"
+        )
+    return sorted(records, key=lambda r: (r.method, r.seed)), unreadable
 
 
 def export_runs(out: Path, dest: Path) -> list[Path]:

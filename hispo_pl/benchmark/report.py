@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import RunDirError
 from ..io import atomic_write_text
 from ..rundir import RunDir
 from .plan import PLAN_FILE, RUNS_DIR
@@ -92,23 +93,29 @@ def unfinished_runs(out: Path) -> list[tuple[str, int, str]]:
         if run.has_results():
             continue
         try:
-            meta = run.read_run_record()
             seed = int(seed_dir.name.removeprefix("seed"))
         except ValueError:
             continue
-        status = meta.get("status") or "not finished (interrupted, or still running)"
+        try:
+            status = run.read_run_record().get("status")
+        except RunDirError as err:
+            status = f"unreadable: {err}"
+        status = status or "not finished (interrupted, or still running)"
         found.append((seed_dir.parent.name, seed, status))
     return found
 
 
-def unfinished_markdown(runs: Sequence[tuple[str, int, str]]) -> str:
-    """The table.md section listing runs without results, so a failed method is never
-    silently missing from the table."""
-    if not runs:
-        return ""
-    lines = ["", "## Runs without results", "", "| method | seed | status |", "|---|---:|---|"]
-    lines += [f"| {method} | {seed} | {status} |" for method, seed, status in runs]
-    return "\n".join(lines) + "\n"
+def unfinished_markdown(runs: Sequence[tuple[str, int, str]], unreadable: Sequence[str]) -> str:
+    """The table.md sections listing runs without results and runs whose files cannot be
+    read, so a failed method is never silently missing from the table."""
+    lines = []
+    if runs:
+        lines += ["", "## Runs without results", "", "| method | seed | status |", "|---|---:|---|"]
+        lines += [f"| {method} | {seed} | {status} |" for method, seed, status in runs]
+    if unreadable:
+        lines += ["", "## Runs that could not be read", ""]
+        lines += [f"- {line}" for line in unreadable]
+    return "\n".join(lines) + "\n" if lines else ""
 
 
 def write_report(out: Path, stream: str | None = None, figures: bool = True) -> list[Path]:
@@ -121,9 +128,11 @@ def write_report(out: Path, stream: str | None = None, figures: bool = True) -> 
         FileNotFoundError: no finished run under ``out/runs``.
     """
     out = Path(out)
-    records = load_records(out)
+    records, unreadable = load_records(out)
+    for line in unreadable:
+        print(f"[benchmark] left out of the tables: {line}")
     missing = unfinished_runs(out)
-    if not records and not missing:
+    if not records and not missing and not unreadable:
         raise FileNotFoundError(
             f"no finished runs ({RUNS_DIR}/<method>/seed<S>/{RunDir.RESULTS}) under {out}"
         )
@@ -133,7 +142,10 @@ def write_report(out: Path, stream: str | None = None, figures: bool = True) -> 
     rows, notes = aggregate(records)
     written = []
     for name, text in (
-        ("table.md", table_markdown(rows, notes, stream) + unfinished_markdown(missing)),
+        (
+            "table.md",
+            table_markdown(rows, notes, stream) + unfinished_markdown(missing, unreadable),
+        ),
         ("table.csv", table_csv(rows)),
         ("runtime.csv", runtime_csv(records)),
     ):
