@@ -331,6 +331,9 @@ def _dispatch(argv: list[str]) -> int:
         return benchmark_main(argv[1:])
     if argv[0] != "fit" and not argv[0].startswith("-"):
         raise UserError(f"unknown verb {argv[0]!r}; the verbs are {', '.join(VERBS)}")
+    from .config_files import check_config_files
+
+    check_config_files(argv)
     try:
         run_lightning_cli(argv)
     except KeyboardInterrupt as err:

@@ -3,13 +3,13 @@ LightningCLI's parsed configuration, with its run directory, per-task Trainers a
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .data.datamodule import TaskDataModule
+from .errors import ConfigError, RunDirError
 from .run_checks import plain_config, run_fingerprint
-from .rundir import task_label
+from .rundir import read_results_file, task_label
 
 if TYPE_CHECKING:
     from .cli import HispoCLI
@@ -24,6 +24,27 @@ def stream_run_dir(logger, root: str, stream, seed) -> Path:
     name = stream if isinstance(stream, str) else "stream"
     number = seed if isinstance(seed, int) and not isinstance(seed, bool) else 0
     return Path(root) / "runs" / name / f"seed{number}"
+
+
+def scratch_diagonal(path: Path, n_tasks: int) -> list[float]:
+    """The R diagonal of a from-scratch run's ``results.json`` (FWT's reference), checked
+    before anything trains: readable, and of a stream as long as this one.
+
+    Raises:
+        ConfigError: the file is missing or malformed, or its stream has another length."""
+    if not path.is_file():
+        raise ConfigError(f"--scratch_results {path}: no such file (a stream's results.json)")
+    try:
+        results = read_results_file(path)
+    except RunDirError as err:
+        raise ConfigError(f"--scratch_results: {err}") from None
+    R = results["R"]
+    if len(R) != n_tasks:
+        raise ConfigError(
+            f"--scratch_results {path}: its stream has {len(R)} tasks, this one {n_tasks}; "
+            "give the results.json of a from-scratch run (scn) of the same stream"
+        )
+    return [R[k][k] for k in range(n_tasks)]
 
 
 def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
@@ -76,8 +97,7 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
     reference = module_bytes(model.reference_model())  # MEM's unit: one single-task model
     scratch = None
     if config.get("scratch_results"):
-        R = json.loads(Path(config["scratch_results"]).read_text())["R"]
-        scratch = [R[k][k] for k in range(len(R))]
+        scratch = scratch_diagonal(Path(config["scratch_results"]), len(datamodule.stream))
     import yaml
 
     plain = plain_config({k: v for k, v in config.as_dict().items() if k != "config"})

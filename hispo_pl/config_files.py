@@ -10,6 +10,59 @@ from pathlib import Path
 
 from .errors import UserError
 
+MAX_CONFIG_NODES = 100_000  # a hand-written config has hundreds; aliases must not explode
+
+
+def expanded_size(path: Path) -> int:
+    """How many YAML nodes ``path`` holds once every alias is expanded, counted on the
+    composed graph (where an alias is one shared node) without expanding anything."""
+    import yaml
+
+    root = yaml.compose(path.read_text())
+    sizes: dict[int, int] = {}
+
+    def size(node) -> int:
+        if id(node) not in sizes:
+            sizes[id(node)] = 0  # a recursive alias counts once
+            children = node.value if isinstance(node.value, list) else []
+            items = [
+                c for child in children for c in (child if isinstance(child, tuple) else (child,))
+            ]
+            sizes[id(node)] = 1 + sum(size(c) for c in items)
+        return sizes[id(node)]
+
+    return size(root) if root is not None else 0
+
+
+def check_config_files(argv: list[str]) -> None:
+    """Refuse a ``--config`` file whose aliases expand past :data:`MAX_CONFIG_NODES` before
+    the parser expands it (a few lines can make billions of nodes and exhaust the memory).
+
+    Raises:
+        UserError: naming the file and its expanded size."""
+    import yaml
+
+    for i, arg in enumerate(argv):
+        if arg == "--config" and i + 1 < len(argv):
+            value = argv[i + 1]
+        elif arg.startswith("--config="):
+            value = arg.split("=", 1)[1]
+        else:
+            continue
+        path = Path(value)
+        if not path.is_file():
+            continue  # the parser says what is wrong with it
+        try:
+            n = expanded_size(path)
+        except (yaml.YAMLError, UnicodeDecodeError, RecursionError):
+            continue  # likewise
+        if n > MAX_CONFIG_NODES:
+            raise UserError(
+                f"--config {path}: its aliases expand to {n:,} YAML nodes (a config holds a "
+                f"few hundred; the limit is {MAX_CONFIG_NODES:,}); write the values out "
+                "instead of nesting aliases"
+            )
+
 
 def config_root() -> Path:
     """``./configs`` when run from a checkout (so edits there apply), else the packaged copy."""

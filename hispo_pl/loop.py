@@ -26,6 +26,7 @@ from .config import upgrade_fingerprint
 from .console import lightning_notices_once, quiet_lightning_notices, say, task_header, task_summary
 from .data.datamodule import TaskDataModule
 from .errors import Interrupted, RunDirError
+from .io import atomic_save
 from .metrics import continual_metrics, memory_ratio, module_bytes, results_row_table
 from .modules.hispo import SubspacePolicy
 from .rundir import RunDir, task_label
@@ -63,9 +64,8 @@ class TaskCheckpoint(L.Callback):
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
         step = trainer.global_step
         if self.every > 0 and step % self.every == 0 and 0 < step < trainer.max_steps:
-            tmp = self.path.with_name(f".{self.path.name}.tmp")
-            trainer.save_checkpoint(tmp, weights_only=False)  # the full training state
-            os.replace(tmp, self.path)
+            # the full training state
+            atomic_save(self.path, lambda tmp: trainer.save_checkpoint(tmp, weights_only=False))
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if self._pending is None:
@@ -258,6 +258,9 @@ class ContinualLoop:
         stored = progress.get("fingerprint")
         stored = upgrade_fingerprint(stored) if stored is not None else None
         differing = differing_keys(stored or {}, self.fingerprint or {})
+        started = progress["rows"] or self.run_dir.partial_checkpoint(0).exists()
+        if differing and not started:  # refused or stopped before its first step: no mixing
+            return fresh
         if self.fingerprint is not None and stored is not None and differing:
             diff = "\n  ".join(differing)
             raise RunDirError(
@@ -295,6 +298,7 @@ class ContinualLoop:
             return self._run()
 
     def _run(self) -> dict:
+        self.run_dir.remove_stale_temporaries()  # of writes a kill cut short; the lock is ours
         progress = self._load_progress()
         done = len(progress["rows"])
         last = self.run_dir.checkpoint(done - 1) if done else None
@@ -366,7 +370,9 @@ class ContinualLoop:
         if self._loggers:
             picture = self._rollout_picture(k) if self.pictures else None
             log_task_end(self._loggers, k, row, picture)
-        trainer.save_checkpoint(self.run_dir.checkpoint(k), weights_only=False)
+        atomic_save(
+            self.run_dir.checkpoint(k), lambda tmp: trainer.save_checkpoint(tmp, weights_only=False)
+        )
         if self.config_text is not None:
             self.run_dir.write_task_config(k, self.config_text)
         progress["rows"].append(list(row))

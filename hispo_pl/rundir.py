@@ -88,6 +88,18 @@ def results_problem(results: dict) -> str | None:
     return None
 
 
+def read_results_file(path: Path) -> dict:
+    """A stream's ``results.json`` at ``path``, checked with :func:`results_problem`.
+
+    Raises:
+        RunDirError: the file is not JSON, not an object, or its R does not fit its stream."""
+    results = _read_object(path, "a finished stream's results")
+    problem = results_problem(results)
+    if problem is not None:
+        raise RunDirError(f"{path} cannot be tabulated: {problem}")
+    return results
+
+
 class RunDir:
     """The files of one run directory (it need not exist yet).
 
@@ -182,6 +194,14 @@ class RunDir:
     def lock_file(self) -> Path:
         return self.path / self.LOCK
 
+    def remove_stale_temporaries(self) -> list[Path]:
+        """Delete the ``.NAME.*tmp`` files that atomic writes leave when a kill interrupts
+        them (call while holding the run's lock); the files removed."""
+        stale = sorted(self.path.glob(".*tmp")) if self.path.is_dir() else []
+        for path in stale:
+            path.unlink(missing_ok=True)
+        return stale
+
     # --- formats ----------------------------------------------------------------------------
 
     def read_progress(self) -> dict | None:
@@ -215,11 +235,7 @@ class RunDir:
         Raises:
             RunDirError: the file is not JSON, not an object, or its R does not fit its stream.
         """
-        results = _read_object(self.results_file, "a finished stream's results")
-        problem = results_problem(results)
-        if problem is not None:
-            raise RunDirError(f"{self.results_file} cannot be tabulated: {problem}")
-        return results
+        return read_results_file(self.results_file)
 
     def write_results(self, results: dict) -> None:
         atomic_write_text(self.results_file, json.dumps(results, indent=1))

@@ -543,3 +543,90 @@ def test_malformed_results_are_listed_as_unreadable(tmp_path, capsys, text):
     captured = capsys.readouterr()
     assert "left out of the tables: ftn/seed0" in captured.out and "Traceback" not in captured.err
     assert "Runs that could not be read" in (tmp_path / "table.md").read_text()
+
+
+# --- 6. too few episodes to hold one out -----------------------------------------------------
+
+
+def test_one_episode_with_a_holdout_is_refused_with_the_numbers(tiny_umaze, tmp_path, capsys):
+    for holdout in ("0.1", "0.6"):
+        args = tiny_stream_args(
+            "ftn", tmp_path, ["pointmaze-umaze-N[1]"], "--data.holdout", holdout
+        )
+        assert main(args) == 2
+        err = capsys.readouterr().err.strip()
+        assert (
+            f"pointmaze-umaze-N[1] has 1 episode: --data.holdout {holdout} needs at least 2" in err
+        )
+        assert "Traceback" not in err and len(err.splitlines()) == 1
+    # the refused runs trained nothing, so the corrected command starts in the same directory
+    args = tiny_stream_args("ftn", tmp_path, ["pointmaze-umaze-N[1]"], "--data.holdout", "0")
+    assert main(args) == 0  # decisions on the training data, as asked
+
+
+# --- 10. smaller: configs that explode, run files others can read, leftovers ---------------
+
+
+def test_a_config_whose_aliases_explode_is_refused_quickly(tmp_path, capsys):
+    import time
+
+    lines = ['a: &a ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
+    for prev, name in zip("abcdefgh", "bcdefghi", strict=True):
+        lines.append(f"{name}: &{name} [{', '.join([f'*{prev}'] * 9)}]")
+    (tmp_path / "laughs.yaml").write_text("\n".join(lines) + "\n")
+    start = time.monotonic()
+    assert main(["fit", "--config", str(tmp_path / "laughs.yaml")]) == 2
+    assert time.monotonic() - start < 10
+    err = capsys.readouterr().err
+    assert "its aliases expand to 490,329,064 YAML nodes" in err and "Traceback" not in err
+
+
+def test_run_files_get_the_mode_of_any_new_file(tmp_path):
+    from hispo_pl.io import atomic_write_text
+
+    old = os.umask(0o022)
+    try:
+        atomic_write_text(tmp_path / "results.json", "{}")
+        os.umask(0o002)
+        atomic_write_text(tmp_path / "progress.json", "{}")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "results.json").stat().st_mode & 0o777 == 0o644
+    assert (tmp_path / "progress.json").stat().st_mode & 0o777 == 0o664
+
+
+def test_leftovers_of_interrupted_writes_are_removed_on_the_next_run(tiny_umaze, tmp_path):
+    run_dir = stream_dir(tmp_path)
+    run_dir.mkdir(parents=True)
+    leftovers = [run_dir / ".progress.json.x1y2.tmp", run_dir / ".task_01.partial.ckpt.tmp"]
+    for path in leftovers:
+        path.write_bytes(b"cut short")
+    assert main(tiny_stream_args("ftn", tmp_path, ["pointmaze-umaze-N[3]"])) == 0
+    assert not any(p.exists() for p in leftovers)
+    assert not list(run_dir.glob(".*tmp")) and (run_dir / "task_01.ckpt").exists()
+
+
+@pytest.mark.parametrize(
+    "content, said",
+    [
+        (None, "no such file"),
+        ("garbage", "not readable JSON"),
+        (
+            '{"stream": ["a", "b"], "R": [[1.0, null], [0.5, 1.0]]}',
+            "its stream has 2 tasks, this one 1",
+        ),
+    ],
+    ids=["missing", "garbage", "other-stream"],
+)
+def test_scratch_results_are_checked_before_training(tiny_umaze, tmp_path, capsys, content, said):
+    scratch = tmp_path / "scratch" / "results.json"
+    if content is not None:
+        scratch.parent.mkdir()
+        scratch.write_text(content)
+    args = tiny_stream_args(
+        "ftn", tmp_path, ["pointmaze-umaze-N[3]"], "--scratch_results", str(scratch)
+    )
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "--scratch_results" in err and said in err and "Traceback" not in err
+    assert not list(stream_dir(tmp_path).glob("*.ckpt"))

@@ -135,7 +135,12 @@ def test_benchmark_lists_a_failed_method_in_the_table(tmp_path):
     good = out / "runs" / "ftn" / "seed0"
     good.mkdir(parents=True)
     R = [[0.5, None], [0.5, 0.25]]
-    (good / "results.json").write_text(json.dumps({"R": R, "wall_time_s": [1, 1]}))
+    results = {
+        "stream": ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"],
+        "R": R,
+        "wall_time_s": [1, 1],
+    }
+    (good / "results.json").write_text(json.dumps(results))
     bad = PlannedRun("broken", 0, out / "runs" / "broken" / "seed0", ("-m", "x"))
     bad.run_dir.mkdir(parents=True)
     (bad.run_dir / "run.json").write_text(json.dumps({"method": "broken", "seed": 0}))

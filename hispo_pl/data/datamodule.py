@@ -261,6 +261,13 @@ class TaskDataModule(L.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         if self.data is None:
             self.data = load_episodes(self.dataset_for(self.task)).for_task(self.task)
+            if self.holdout > 0 and self.data.n_episodes < 2:
+                raise ConfigError(
+                    f"{self.task} has {self.data.n_episodes} episode: --data.holdout "
+                    f"{self.holdout} needs at least 2 (one to train on, one to score the "
+                    "decisions on); give the task more episodes, or --data.holdout 0 to score "
+                    "them on the training data"
+                )
             train, heldout = self.data.split_episodes(self.holdout)
             self.splits = {"train": train, "heldout": heldout}
         if self.replay and not self.replayed:  # earlier tasks' training episodes only
