@@ -18,6 +18,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import signal
 import sys
@@ -242,10 +243,43 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # the output went into a pipe that closed early (| head)
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error at exit
         return 1
+    except OSError as err:
+        said = machine_error(err, resumable=not argv or argv[0] in ("fit", "benchmark"))
+        if said is None:
+            raise
+        print(f"{prog}: error: {said}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt as err:
         hint = str(err) if isinstance(err, Interrupted) else "interrupted"
         print(f"\n{prog}: {hint}", file=sys.stderr)
         return 128 + (received[0] if received else signal.SIGINT)
+
+
+_MACHINE_ERRORS = {
+    errno.ENOSPC: "no space is left on the device that holds it; free some (or write "
+    "elsewhere) and rerun",
+    errno.EDQUOT: "the disk quota is used up; free some space (or write elsewhere) and rerun",
+    errno.EROFS: "it is on a read-only file system; give a writable directory",
+    errno.EACCES: "permission denied; give a directory you can write (or fix its permissions)",
+    errno.EPERM: "the operation is not permitted there; give a directory you own",
+    errno.ENAMETOOLONG: "the name is too long for the file system; choose a shorter one",
+    errno.EISDIR: "it is a directory where a file was expected; name a file",
+    errno.ENOTDIR: "a part of the path is a file where a directory was expected",
+    errno.EEXIST: "a file is in the way where a directory is needed",
+}
+
+
+def machine_error(err: OSError, resumable: bool = False) -> str | None:
+    """One paragraph for an error of the machine rather than of hispo-pl (disk full,
+    read-only, permission, a name too long), naming the path; None for anything else.
+    ``resumable``: the command keeps what it finished (checkpoints and run files are written
+    atomically), and the paragraph says so."""
+    hint = _MACHINE_ERRORS.get(err.errno)
+    if hint is None:
+        return None
+    where = f" {err.filename}" if err.filename else ""
+    kept = " Finished work is kept: rerun the same command to resume." if resumable else ""
+    return f"cannot use{where}: {hint} ({err.strerror}).{kept}"
 
 
 @contextlib.contextmanager

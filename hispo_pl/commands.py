@@ -260,6 +260,12 @@ def render_main(argv: list[str]) -> int:
             raise
         print("hispo-pl render: needs matplotlib (pip install matplotlib)", file=sys.stderr)
         return 2
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    formats = FigureCanvasBase.get_supported_filetypes()
+    suffix = Path(args.out).suffix.lstrip(".").lower()
+    if suffix not in formats:  # known before any rollout is spent
+        parser.error(f"--out {args.out}: name an image file ({', '.join(sorted(formats))})")
     try:
         tasks = expand_render_tasks(args.tasks)
         overlays = None

@@ -114,6 +114,8 @@ def config_main(argv: list[str]) -> int:
     elif args.cmd == "show":
         print(config_path(args.name, root).read_text(), end="")
     else:
+        if args.dest.exists() and not args.dest.is_dir():
+            raise UserError(f"{args.dest} is a file; config copy fills a folder: name a new one")
         if args.dest.exists() and any(args.dest.iterdir()):
             raise UserError(f"{args.dest} exists and is not empty; choose a new folder")
         for name in config_names(root):

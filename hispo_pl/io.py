@@ -21,6 +21,9 @@ def atomic_save(path: str | Path, save) -> None:
     try:
         save(tmp)
         os.replace(tmp, path)
+    except OSError as err:  # named by the file it was for, not by a writer's own scratch file
+        tmp.unlink(missing_ok=True)
+        raise OSError(err.errno, err.strerror, str(path)) from err
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

@@ -630,3 +630,73 @@ def test_scratch_results_are_checked_before_training(tiny_umaze, tmp_path, capsy
     err = capsys.readouterr().err
     assert "--scratch_results" in err and said in err and "Traceback" not in err
     assert not list(stream_dir(tmp_path).glob("*.ckpt"))
+
+
+# --- 7. the machine's errors: one paragraph naming the path, earlier work intact -------------
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 300 KB tmpfs (root only): too small for a task's checkpoint."""
+    import subprocess
+
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if os.getuid() != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=300k", "tmpfs", str(disk)])
+    if done.returncode != 0:
+        pytest.skip("tmpfs cannot be mounted here")
+    yield disk
+    subprocess.run(["umount", "-l", str(disk)], check=False)
+
+
+def test_a_full_disk_names_the_file_and_leaves_no_truncated_checkpoint(
+    tiny_umaze, small_disk, capsys
+):
+    assert main(tiny_stream_args("ftn", small_disk / "runs")) == 2
+    err = capsys.readouterr().err.strip()
+    run_dir = stream_dir(small_disk / "runs")
+    assert f"cannot use {run_dir / 'task_01.ckpt'}: no space is left" in err, err
+    assert "rerun the same command to resume" in err and len(err.splitlines()) == 1
+    assert not list(run_dir.glob("*.ckpt")) and not list(run_dir.glob(".*tmp"))
+    assert json.loads((run_dir / "progress.json").read_text())["rows"] == []
+
+
+def test_a_read_only_run_directory_is_one_paragraph(tiny_umaze, small_disk, capsys):
+    import subprocess
+
+    subprocess.run(["mount", "-o", "remount,ro", str(small_disk)], check=True)
+    assert main(tiny_stream_args("ftn", small_disk / "runs")) == 2
+    err = capsys.readouterr().err.strip()
+    assert "read-only file system" in err and str(small_disk) in err and "Traceback" not in err
+    assert main(["render", "pointmaze-umaze", "--out", str(small_disk / "m.png")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"hispo-pl render: error: cannot use {small_disk / 'm.png'}")
+    assert "resume" not in err
+
+
+@pytest.mark.parametrize(
+    "argv, said",
+    [
+        (["render", "pointmaze-umaze", "--out", "{tmp}/m.xyz"], "--out {tmp}/m.xyz: name an image"),
+        (["render", "pointmaze-umaze", "--out", "{tmp}/file/m.png"], "a file is in the way"),
+        (["render", "pointmaze-umaze", "--out", "{tmp}/" + "n" * 300 + ".png"], "too long"),
+        (["config", "copy", "{tmp}/file"], "{tmp}/file is a file; config copy fills a folder"),
+        (
+            ["benchmark", "--report-only", "--docs", "{tmp}/no.md"],
+            "--docs {tmp}/no.md: no such page",
+        ),
+    ],
+    ids=["render-extension", "render-file-in-the-way", "name-too-long", "config-copy", "docs"],
+)
+def test_paths_that_cannot_be_written_are_one_paragraph(tmp_path, capsys, argv, said):
+    (tmp_path / "file").write_text("in the way")
+    try:
+        code = main([a.replace("{tmp}", str(tmp_path)) for a in argv])
+    except SystemExit as exit:  # argparse's own errors exit from inside the parser
+        code = exit.code
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert said.replace("{tmp}", str(tmp_path)) in err and "Traceback" not in err
+    assert (tmp_path / "file").read_text() == "in the way"

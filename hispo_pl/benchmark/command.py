@@ -36,6 +36,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(own)
     if args.report_only and args.docs:
+        if not Path(args.docs).is_file():
+            parser.error(f"--docs {args.docs}: no such page (a markdown file with report embeds)")
         Path(args.docs).write_text(embed_reports(Path(args.docs)))
         print(f"[benchmark] rebuilt the reports embedded in {args.docs}")
         return 0
