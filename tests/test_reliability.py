@@ -700,3 +700,20 @@ def test_paths_that_cannot_be_written_are_one_paragraph(tmp_path, capsys, argv, 
     err = capsys.readouterr().err.strip()
     assert said.replace("{tmp}", str(tmp_path)) in err and "Traceback" not in err
     assert (tmp_path / "file").read_text() == "in the way"
+
+
+# --- 9. two jobs on one missing dataset -------------------------------------------------------
+
+
+def test_two_processes_that_need_one_dataset_build_it_once(tmp_path, monkeypatch):
+    from hispo_pl.data.datasets import load_episodes
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    argv = ["data", "generate", "pointmaze-umaze", "--episodes", "4"]
+    procs = [spawn(cli_source(argv)) for _ in range(2)]
+    outcomes = [proc.communicate(timeout=300) for proc in procs]
+    for proc, (out, err) in zip(procs, outcomes, strict=True):
+        assert proc.returncode == 0, err[-2000:]
+        assert json.loads(out[out.index("{") :])["episodes"] == 4
+    assert load_episodes("pointmaze-umaze-N[4]", generate_if_missing=False).n_episodes == 4
+    assert not list((tmp_path / ".staging").glob("*")), "staging left behind"

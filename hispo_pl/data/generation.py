@@ -147,10 +147,36 @@ def generate_dataset(
     complete (with ``overwrite``, the dataset it replaces stays in use until then); an
     incomplete one found in place (:func:`dataset_problem`) is rebuilt.
     """
+    task = parse_task(name)
+    with dataset_lock(task.dataset_name, progress):  # a second process waits, then reuses it
+        return _generate(task, episodes, seed, noise, overwrite, progress, expert_weights)
+
+
+@contextlib.contextmanager
+def dataset_lock(name: str, say: bool = True):
+    """Hold the dataset ``name``'s build lock (``fcntl.flock`` on ``.locks/NAME.lock`` in the
+    Minari root): two processes that need the same missing dataset never write it at once."""
+    import fcntl
+
+    path = dataset_path("") / ".locks" / f"{name}.lock"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as f:
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            if say:
+                print(f"[hispo-pl] waiting for another process that builds {name}", flush=True)
+            fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def _generate(task, episodes, seed, noise, overwrite, progress, expert_weights) -> str:
     import minari
     from minari.data_collector import EpisodeBuffer
 
-    task = parse_task(name)
     name = task.dataset_name
     dataset_id = local_dataset_id(name)
     final = dataset_path(dataset_id)
