@@ -717,3 +717,16 @@ def test_two_processes_that_need_one_dataset_build_it_once(tmp_path, monkeypatch
         assert json.loads(out[out.index("{") :])["episodes"] == 4
     assert load_episodes("pointmaze-umaze-N[4]", generate_if_missing=False).n_episodes == 4
     assert not list((tmp_path / ".staging").glob("*")), "staging left behind"
+
+
+def test_hyperparameters_that_do_not_fit_the_weights_are_refused_before_allocating(
+    tiny_run, tmp_path, capsys
+):
+    checkpoint = torch.load(tiny_run[1] / "task_02.ckpt", weights_only=True)
+    checkpoint["hyper_parameters"]["backbone"]["low_hidden"] = 10**9  # 10^18 weights if built
+    torch.save(checkpoint, tmp_path / "crafted.ckpt")
+    path = str(tmp_path / "crafted.ckpt")
+    assert main(["evaluate", "--ckpt", path, "--task", "pointmaze-umaze"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "its hyperparameters make" in err and "its weights hold" in err
+    assert len(err.splitlines()) == 1

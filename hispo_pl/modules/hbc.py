@@ -137,6 +137,7 @@ class GoalConditionedBC(L.LightningModule):
         try:
             # LightningCLI adds private entries such as ``_class_path`` to the hyperparameters
             hparams = {k: v for k, v in checkpoint["hyper_parameters"].items() if k[:1] != "_"}
+            _check_shapes_on_meta(method, upgrade_hparams(hparams), checkpoint, path)
             module = method(**upgrade_hparams(hparams))
             module.load_checkpoint(checkpoint)
         except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as err:
@@ -278,6 +279,28 @@ def check_finite_state(state_dict: dict[str, Tensor], task_index: int = 0) -> No
 def _first_line(err: BaseException) -> str:
     text = str(err).strip()
     return text.splitlines()[0] if text else type(err).__name__
+
+
+def _check_shapes_on_meta(method, hparams: dict, checkpoint: dict, path) -> None:
+    """Build ``method`` from a checkpoint's hyperparameters on the meta device (no memory)
+    and compare its tensors' shapes with the stored ones, so that hyperparameters that do not
+    match the weights (a crafted hidden size of a billion) are refused before anything is
+    allocated. A method that cannot be built on the meta device is checked when loaded."""
+    stored = checkpoint["state_dict"]
+    try:
+        with torch.device("meta"):
+            probe = method(**hparams)
+            probe.on_load_checkpoint(checkpoint)
+        expected = {k: tuple(v.shape) for k, v in probe.state_dict().items()}
+    except (RuntimeError, NotImplementedError):
+        return
+    for name in sorted(set(expected) | set(stored)):
+        have = tuple(stored[name].shape) if torch.is_tensor(stored.get(name)) else None
+        if expected.get(name) != have:
+            raise CheckpointError(
+                f"not a readable hispo-pl checkpoint: {path} (its hyperparameters make "
+                f"{name} of shape {expected.get(name)}, its weights hold {have})"
+            )
 
 
 def read_checkpoint(path: str | Path) -> dict:
