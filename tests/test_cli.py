@@ -314,7 +314,7 @@ def test_acting_on_another_task_than_the_policys_own_is_named(tmp_path):
     umaze, umaze_pa = parse_task("pointmaze-umaze[5]"), parse_task("pointmaze-umaze-PA")
     assert other_task_note(ckpt, 1, [umaze]) is None  # no stream run: nothing to compare with
     RunDir(tmp_path).write_progress(
-        {"stream": ["pointmaze-umaze-N[500]", "pointmaze-umaze-PA[500]"]}
+        {"stream": ["pointmaze-umaze-N[500]", "pointmaze-umaze-PA[500]"], "rows": []}
     )
     assert other_task_note(ckpt, 0, [umaze]) is None  # the same maze and variant, other episodes
     assert other_task_note(ckpt, 1, [umaze_pa]) is None

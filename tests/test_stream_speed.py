@@ -59,6 +59,7 @@ def test_report_only_reads_exported_runs(tmp_path, capsys):
         run = tmp_path / f"hispo-{path}" / "seed0"
         run.mkdir(parents=True)
         results = {
+            "stream": ["pointmaze-umaze-N[500]", "pointmaze-umaze-PO[500]"],
             "R": [[1.0, None], [1.0, 0.9 if path == "fast" else 0.95]],
             "PER": 0.95,
             "BWT": 0.0,
