@@ -222,7 +222,7 @@ def test_tables_markdown_and_csv():
     assert md.startswith("# Benchmark: pointmaze-1\n")
     line = "| hispo | 2 | 80.0 ± 10.0 | 0.0 ± 0.0 | 5.0 ± 5.0 | 2.00 ± 0.50 |"
     assert line + " high 2.0 ± 0.0, low 1.5 ± 0.5 |" in md
-    assert "| bc-ft1 | 1 | 50.0 ± 0.0 | -50.0 ± 0.0 | ¹ |  |  |" in md
+    assert "| bc-ft1 | 1 | 50.0 | -50.0 | ¹ |  |  |" in md
     assert "¹ bc-ft1: no FWT" in md
     table = list(csv.DictReader(io.StringIO(bm.table_csv(rows))))
     hispo = next(r for r in table if r["method"] == "hispo")

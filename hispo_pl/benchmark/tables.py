@@ -15,8 +15,13 @@ from .records import MethodRow, RunRecord, format_mean_std, results_matrix
 SCALED = ("PER", "BWT", "FWT")  # success fractions, reported ×100 like the paper
 
 
-def _cell(value: tuple[float, float] | None, scale: float, digits: int) -> str:
-    return "" if value is None else format_mean_std(*value, scale=scale, digits=digits)
+def _cell(value: tuple[float, float] | None, scale: float, digits: int, seeds: int = 2) -> str:
+    """``mean ± std``; one seed's value alone (a spread of one run says nothing)."""
+    if value is None:
+        return ""
+    if seeds == 1:
+        return f"{scale * value[0]:.{digits}f}"
+    return format_mean_std(*value, scale=scale, digits=digits)
 
 
 def table_markdown(rows: Sequence[MethodRow], notes: Sequence[str], stream: str = "") -> str:
@@ -27,14 +32,16 @@ def table_markdown(rows: Sequence[MethodRow], notes: Sequence[str], stream: str 
         "|---|---:|---:|---:|---:|---:|---|",
     ]
     for row in rows:
-        anchors = ", ".join(f"{k} {_cell(v, 1, 1)}" for k, v in row.anchors.items())
-        fwt = _cell(row.FWT, 100, 1) + ("" if row.FWT is not None or not notes else " ¹")
+        n = len(row.seeds)
+        anchors = ", ".join(f"{k} {_cell(v, 1, 1, n)}" for k, v in row.anchors.items())
+        fwt = _cell(row.FWT, 100, 1, n) + ("" if row.FWT is not None or not notes else " ¹")
         lines.append(
-            f"| {row.method} | {len(row.seeds)} | {_cell(row.PER, 100, 1)} | "
-            f"{_cell(row.BWT, 100, 1)} | {fwt.strip()} | {_cell(row.MEM, 1, 2)} | {anchors} |"
+            f"| {row.method} | {n} | {_cell(row.PER, 100, 1, n)} | {_cell(row.BWT, 100, 1, n)} "
+            f"| {fwt.strip()} | {_cell(row.MEM, 1, 2, n)} | {anchors} |"
         )
     legend = (
-        "\nPER, BWT, FWT: success ×100, mean ± std (population) over seeds; MEM: stored size "
+        "\nPER, BWT, FWT: success ×100, mean ± std (population) over seeds (one seed: its "
+        "value); MEM: stored size "
         "over one single-task model; anchors: per subspace. FWT is measured against the R "
         "diagonal of the from-scratch run of the same seed (scn, else sc1; bc-scn, else bc-sc1 "
         "for bc- methods).\n"
