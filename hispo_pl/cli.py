@@ -208,6 +208,7 @@ def run_lightning_cli(args: list[str] | None = None, run: bool = True) -> HispoC
         args=args,
         trainer_defaults={"accelerator": "cpu", "devices": 1},
         save_config_kwargs={"overwrite": True},
+        parser_kwargs={"allow_abbrev": False},  # --trainer.max_step is a typo, not max_steps
         run=run,
     )
 

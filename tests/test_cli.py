@@ -322,3 +322,11 @@ def test_acting_on_another_task_than_the_policys_own_is_named(tmp_path):
     assert "task 2 was trained on pointmaze-umaze-PA[500]" in note
     assert note.endswith("acting on pointmaze-umaze-N[5]")
     assert other_task_note(ckpt, 2, [umaze]) is None  # a task the stream does not have
+
+
+def test_an_abbreviated_flag_is_a_typo_not_the_flag_it_starts(capsys):
+    config = str(Path(__file__).parents[1] / "configs" / "hbc" / "pointmaze-umaze.yaml")
+    with pytest.raises(SystemExit) as exit:
+        main(["fit", "--config", config, "--trainer.max_step", "5"])
+    assert exit.value.code == 2
+    assert "unrecognized arguments: --trainer.max_step 5" in capsys.readouterr().err
