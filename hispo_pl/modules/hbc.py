@@ -113,8 +113,8 @@ class GoalConditionedBC(L.LightningModule):
         """Rebuild whichever method wrote ``path`` (its class is stored in the file), on CPU.
 
         The file holds plain tensors and values only (``weights_only=True``), and its class
-        name is looked up among hispo-pl's own methods (:func:`method_registry`): nothing the
-        file names is imported.
+        name is looked up among the methods already imported (:func:`imported_method`):
+        nothing the file names is imported.
 
         Raises:
             CheckpointError: the file is corrupt, truncated, unsafe, or not hispo-pl's.
@@ -126,7 +126,7 @@ class GoalConditionedBC(L.LightningModule):
                 f"not a readable hispo-pl checkpoint: {path} (no hispo_pl_class entry: it was "
                 "not written by a hispo-pl module)"
             )
-        method = method_registry().get(name)
+        method = imported_method(name)
         if method is None:
             raise CheckpointError(
                 f"not a readable hispo-pl checkpoint: {path} names the class {name!r}, which is "
@@ -137,8 +137,9 @@ class GoalConditionedBC(L.LightningModule):
         try:
             # LightningCLI adds private entries such as ``_class_path`` to the hyperparameters
             hparams = {k: v for k, v in checkpoint["hyper_parameters"].items() if k[:1] != "_"}
-            _check_shapes_on_meta(method, upgrade_hparams(hparams), checkpoint, path)
-            module = method(**upgrade_hparams(hparams))
+            hparams = upgrade_hparams(hparams)
+            _check_shapes_on_meta(method, hparams, checkpoint, path)
+            module = method(**hparams)
             module.load_checkpoint(checkpoint)
         except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as err:
             raise CheckpointError(
@@ -339,8 +340,10 @@ def imported_method(class_path: str) -> type[GoalConditionedBC] | None:
     """The method class ``class_path`` names (``package.module.Name``, as a config or
     LightningCLI's ``_class_path`` spells it), if its module is already imported and the name
     is a :class:`GoalConditionedBC` subclass; else None. Nothing is imported: a checkpoint can
-    only pick among the methods hispo-pl or the user's own config already loaded."""
+    only pick among the methods hispo-pl (all of them) or the user's own config loaded."""
     import sys
+
+    from .. import modules  # noqa: F401  (defines every shipped method)
 
     module_name, _, name = class_path.rpartition(".")
     found = getattr(sys.modules.get(module_name), name, None) if module_name else None
@@ -376,19 +379,3 @@ def checkpoint_model_hparams(checkpoint: dict, path: str | Path) -> dict:
     if "_class_path" in hparams:
         hparams = {"class_path": hparams.pop("_class_path"), "dict_kwargs": hparams}
     return hparams
-
-
-def method_registry() -> dict[str, type[GoalConditionedBC]]:
-    """hispo-pl's own methods by the name a checkpoint stores (``module.QualName``): every
-    subclass of :class:`GoalConditionedBC` defined in the ``hispo_pl`` package. Only already
-    imported code is searched; a checkpoint can never make hispo-pl import a module."""
-    from .. import modules  # noqa: F401  (defines every shipped method)
-
-    found: dict[str, type[GoalConditionedBC]] = {}
-    todo = [GoalConditionedBC]
-    while todo:
-        klass = todo.pop()
-        if klass.__module__.split(".")[0] == "hispo_pl":
-            found[f"{klass.__module__}.{klass.__qualname__}"] = klass
-        todo.extend(klass.__subclasses__())
-    return found
