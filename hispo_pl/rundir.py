@@ -248,7 +248,8 @@ class RunDir:
         kill, or one that is not a JSON object, is skipped."""
         if not self.decisions_file.exists():
             return []
-        return [r for r in map(_decision, self.decisions_file.read_text().splitlines()) if r]
+        lines = self.decisions_file.read_text().splitlines()
+        return [r for r in map(_decision, lines) if r is not None]
 
     def append_decisions(self, records: Iterable[dict]) -> None:
         self.path.mkdir(parents=True, exist_ok=True)

@@ -175,25 +175,24 @@ def episodes_to_arrays(episodes, dataset: str = "the dataset") -> EpisodeArrays:
     obs, pos, act, end, idx, seg = [], [], [], [], [], []
     start = 0
     for k, ep in enumerate(episodes):
-        fields = {"actions": ep.actions, **ep.observations}
-        for field in ("observation", "achieved_goal", "desired_goal", "actions"):
-            if fields.get(field) is not None:
-                values = np.asarray(fields[field], dtype=np.float64)
-                check_finite(dataset, getattr(ep, "id", k), field, values)
         o = np.asarray(ep.observations["observation"], dtype=np.float32)
         n = len(o)  # T + 1
         a = np.zeros((n, np.asarray(ep.actions).shape[-1]), dtype=np.float32)
         a[: n - 1] = ep.actions
+        p = np.asarray(ep.observations["achieved_goal"], dtype=np.float32)
+        goals = ep.observations.get("desired_goal")
+        goals = None if goals is None else np.asarray(goals)
+        # as training reads them (float32: a value too large for it is infinite there too)
+        named = {"observation": o, "achieved_goal": p, "desired_goal": goals, "actions": a}
+        for field, values in named.items():
+            if values is not None:
+                check_finite(dataset, getattr(ep, "id", k), field, values)
         obs.append(o)
-        pos.append(np.asarray(ep.observations["achieved_goal"], dtype=np.float32))
+        pos.append(p)
         act.append(a)
         end.append(np.full(n, start + n - 1, dtype=np.int64))
         idx.append(np.arange(start, start + n - 1, dtype=np.int64))
-        goals = ep.observations.get("desired_goal")
-        seg.append(
-            start
-            + (goal_segment_ends(np.asarray(goals)) if goals is not None else np.full(n, n - 1))
-        )
+        seg.append(start + (goal_segment_ends(goals) if goals is not None else np.full(n, n - 1)))
         start += n
     if not obs:
         raise ValueError("dataset has no episodes")
