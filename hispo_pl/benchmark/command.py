@@ -6,6 +6,7 @@ import json
 import shlex
 import sys
 from collections.abc import Sequence
+from contextlib import suppress
 from pathlib import Path
 
 from ..errors import Interrupted, RunDirError
@@ -31,10 +32,81 @@ def _print_report(out: Path, stream: str | None) -> None:
         print(f"[benchmark] wrote {path}")
 
 
+def _grid_main(parser, args, extra: list[str]) -> int:
+    """``--grid``: plan the grid against ROOT (``--export``), run what is left in WORK
+    (``--out``), export each run and rebuild the stream's and the grid's reports."""
+    from dataclasses import replace
+
+    from ..errors import ConfigError
+    from .grid import grid_streams, load_grid, run_grid
+    from .grid_report import write_grid_report
+    from .report import write_report
+
+    if args.stream:
+        parser.error("--grid and --stream: a grid names its own streams (--part selects some)")
+    if not args.export:
+        parser.error("--grid needs --export ROOT: where its runs are committed (docs/results)")
+    if not args.report_only and not args.out:
+        parser.error("--grid needs --out WORK: where its runs train (checkpoints, logs)")
+    config_dir = Path(args.config_dir)
+    try:
+        grid = load_grid(args.grid, config_dir)
+        streams = grid_streams(grid, args.part)
+        if args.methods.strip() != "all":
+            grid = replace(grid, methods=tuple(plan.select_methods(args.methods, grid.methods)))
+    except (ConfigError, ValueError) as e:
+        parser.error(str(e))
+    grid = replace(grid, extra=(*grid.extra, *extra))
+    if args.steps_per_task is not None:
+        grid = replace(grid, steps_per_task=args.steps_per_task)
+    root = Path(args.export)
+
+    def reports(changed: Sequence[str]) -> None:
+        for stream in changed:
+            with suppress(FileNotFoundError):  # only sweep runs so far: no table yet
+                write_report(root / stream, stream)
+        try:
+            write_grid_report(grid, root)
+        except ImportError:
+            print("[grid] no aggregate intervals: pip install 'hispo-pl[stats]' (rliable)")
+
+    if args.report_only:
+        for path in write_grid_report(grid, root):
+            print(f"[benchmark] wrote {path}")
+        return 0
+    if not (config_dir / "methods").is_dir():
+        parser.error(
+            f"no {config_dir / 'methods'}: run from the repository root or pass --config-dir"
+        )
+    workers = args.workers or max(1, cpu_count() // args.num_threads)
+    try:
+        failed = run_grid(
+            grid,
+            streams,
+            config_dir,
+            Path(args.out),
+            root,
+            workers,
+            args.num_threads,
+            args.dry_run,
+            None if args.dry_run else reports,
+        )
+    except KeyboardInterrupt:
+        raise Interrupted(
+            "interrupted: finished runs are exported, the stopped ones saved what they "
+            "finished; rerun the same command to resume"
+        ) from None
+    if failed:
+        print(f"[grid] {failed} run(s) failed; their logs are under {args.out}")
+    return 1 if failed else 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     own, extra = _split_extra(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     args = parser.parse_args(own)
+    if args.grid:
+        return _grid_main(parser, args, extra)
     if args.report_only and args.docs:
         if not Path(args.docs).is_file():
             parser.error(f"--docs {args.docs}: no such page (a markdown file with report embeds)")

@@ -32,7 +32,9 @@ def build_parser() -> argparse.ArgumentParser:
             "--out results/pm2 -- --data.batch_size 512\n"
             "  hispo-pl benchmark --stream pointmaze-1 --methods all --seeds 3 --out "
             "results/pointmaze-1 --launcher ray --address auto\n"
-            "  hispo-pl benchmark --out results/pointmaze-1 --report-only"
+            "  hispo-pl benchmark --out results/pointmaze-1 --report-only\n"
+            "  hispo-pl benchmark --grid paper --part pointmaze --out results/grid --export "
+            "docs/results"
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -87,6 +89,20 @@ def build_parser() -> argparse.ArgumentParser:
         "--config-dir",
         default="configs",
         help="where streams/ and methods/ live (default: configs)",
+    )
+    parser.add_argument(
+        "--grid",
+        metavar="NAME",
+        default=None,
+        help="run a grid (CONFIG_DIR/grids/<name>.yaml, e.g. paper) instead of one stream: "
+        "every run not yet committed under --export ROOT, logging to --out WORK, each "
+        "exported to ROOT/<stream>/ as it finishes; rerun to go on",
+    )
+    parser.add_argument(
+        "--part",
+        default=None,
+        help="with --grid: only these streams (a part of the grid, such as pointmaze, or a "
+        "stream; a comma list of either)",
     )
     parser.add_argument(
         "--dry-run", action="store_true", help="print the planned fit commands; run nothing"

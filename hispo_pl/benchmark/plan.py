@@ -159,6 +159,29 @@ class PlannedRun:
         return [python, *self.argv]
 
 
+def plan_run(
+    stream_config: Path,
+    method_config: Path,
+    label: str,
+    seed: int,
+    out: Path,
+    num_threads: int = 1,
+    steps_per_task: int | None = None,
+    extra: Sequence[str] = (),
+) -> PlannedRun:
+    """One run of ``method_config`` on ``stream_config``, logging to
+    ``out/runs/<label>/seed<seed>`` (``label``: the method's name, or a grid's name for one
+    setting of it), with absolute paths in its command (a worker may start elsewhere)."""
+    out = Path(out).resolve()
+    args = fit_argv(
+        stream_config, method_config, label, seed, out, num_threads, steps_per_task, extra
+    )
+    configs = (Path(stream_config), Path(method_config))
+    steps = configured_max_steps(configs, args)
+    run_dir = out / RUNS_DIR / label / f"seed{seed}"
+    return PlannedRun(label, seed, run_dir, (*FIT_MODULE, *args), steps, configs)
+
+
 def plan_runs(
     stream_config: Path,
     config_dir: Path,
@@ -169,21 +192,21 @@ def plan_runs(
     steps_per_task: int | None = None,
     extra: Sequence[str] = (),
 ) -> list[PlannedRun]:
-    """One run per (method, seed), methods outer, with absolute paths in every command (a
-    worker may start elsewhere)."""
-    out = Path(out).resolve()
-    runs = []
-    for method in methods:
-        method_config = (Path(config_dir) / "methods" / f"{method}.yaml").resolve()
-        for seed in seeds:
-            args = fit_argv(
-                stream_config, method_config, method, seed, out, num_threads, steps_per_task, extra
-            )
-            configs = (Path(stream_config), method_config)
-            steps = configured_max_steps(configs, args)
-            run_dir = out / RUNS_DIR / method / f"seed{seed}"
-            runs.append(PlannedRun(method, seed, run_dir, (*FIT_MODULE, *args), steps, configs))
-    return runs
+    """One run per (method, seed), methods outer (:func:`plan_run`)."""
+    return [
+        plan_run(
+            stream_config,
+            (Path(config_dir) / "methods" / f"{method}.yaml").resolve(),
+            method,
+            seed,
+            out,
+            num_threads,
+            steps_per_task,
+            extra,
+        )
+        for method in methods
+        for seed in seeds
+    ]
 
 
 def planned_tasks(run: PlannedRun) -> list[str]:

@@ -148,6 +148,20 @@ class MethodRow:
     fwt_reference: str | None = None
 
 
+def per_run_metrics(records: Sequence[RunRecord]) -> list[tuple[RunRecord, dict, str | None]]:
+    """Each run's metrics (:func:`run_metrics`), FWT against the from-scratch run of the same
+    seed (:func:`scratch_method_for`) where there is one, and the name of that reference."""
+    by_seed: dict[int, dict[str, RunRecord]] = {}
+    for r in records:
+        by_seed.setdefault(r.seed, {})[r.method] = r
+    found = []
+    for r in records:
+        ref = scratch_method_for(r.method, by_seed[r.seed])
+        scratch = by_seed[r.seed][ref].results if ref else None
+        found.append((r, run_metrics(r.results, scratch), ref))
+    return found
+
+
 def aggregate(records: Sequence[RunRecord]) -> tuple[list[MethodRow], list[str]]:
     """One row per method (sorted) and footnotes.
 
@@ -155,26 +169,16 @@ def aggregate(records: Sequence[RunRecord]) -> tuple[list[MethodRow], list[str]]
     seed (:func:`scratch_method_for`); it is left empty, with a footnote, unless every seed of
     the method has one.
     """
-    by_seed: dict[int, dict[str, RunRecord]] = {}
-    for r in records:
-        by_seed.setdefault(r.seed, {})[r.method] = r
-    methods = sorted({r.method for r in records})
+    measured = per_run_metrics(records)
     rows, notes = [], []
-    for method in methods:
-        mine = [r for r in records if r.method == method]
-        metrics, references, missing = [], set(), []
-        for r in mine:
-            ref = scratch_method_for(method, by_seed[r.seed])
-            scratch = by_seed[r.seed][ref].results if ref else None
-            m = run_metrics(r.results, scratch)
-            if "FWT" in m:
-                references.add(ref)
-            else:
-                missing.append(r.seed)
-            metrics.append(m)
+    for method in sorted({r.method for r in records}):
+        mine = [(r, m, ref) for r, m, ref in measured if r.method == method]
+        metrics = [m for _, m, _ in mine]
+        references = {ref for _, m, ref in mine if "FWT" in m}
+        missing = [r.seed for r, m, _ in mine if "FWT" not in m]
         row = MethodRow(
             method,
-            [r.seed for r in mine],
+            [r.seed for r, _, _ in mine],
             mean_std([m["PER"] for m in metrics]),
             mean_std([m["BWT"] for m in metrics]),
         )

@@ -12,6 +12,7 @@ import numpy as np
 from ..errors import RunDirError
 from ..io import atomic_write_text
 from ..rundir import RunDir
+from .grid import GRID_FILE
 from .plan import PLAN_FILE, RUNS_DIR
 from .records import MethodRow, RunRecord, aggregate, load_records, results_matrix
 from .tables import (
@@ -173,9 +174,9 @@ def embed_reports(doc: Path, root: Path = Path(".")) -> str:
     """``doc``'s text with every embedded report rebuilt: a block opened by
     ``<!-- report: DIR/NAME -->`` and closed by ``<!-- end report -->`` gets the file ``NAME``
     that :func:`write_report` builds from the runs under ``DIR`` (relative to ``root``), without
-    its title line. Keeps a documentation page equal to what its committed run files give."""
-    import tempfile
-
+    its title line; a grid's report (its folder holds ``grid.json``) is rebuilt from the
+    grid's committed runs. Keeps a documentation page equal to what its committed run files
+    give."""
     lines, out, i = Path(doc).read_text().splitlines(), [], 0
     while i < len(lines):
         line = lines[i]
@@ -184,21 +185,43 @@ def embed_reports(doc: Path, root: Path = Path(".")) -> str:
         if not line.startswith(EMBED_BEGIN):
             continue
         target = Path(root) / line[len(EMBED_BEGIN) :].removesuffix("-->").strip()
-        with tempfile.TemporaryDirectory() as tmp:
-            # a copy, so the committed report files are left as they are
-            for name in RunDir.EXPORTED:
-                for src in target.parent.glob(f"*/seed*/{name}"):
-                    dst = Path(tmp) / src.relative_to(target.parent)
-                    dst.parent.mkdir(parents=True, exist_ok=True)
-                    dst.write_bytes(src.read_bytes())
-            stream = (target.parent / PLAN_FILE).exists() and json.loads(
-                (target.parent / PLAN_FILE).read_text()
-            ).get("stream")
-            write_report(Path(tmp), stream or target.parent.name, figures=False)
-            text = (Path(tmp) / target.name).read_text().splitlines()
+        if (target.parent / GRID_FILE).exists():
+            text = _grid_report_text(target).splitlines()
+        else:
+            text = _stream_report_text(target).splitlines()
         out += [x for x in text[1:] if x or out[-1]]  # without the title, no doubled blank
         while i < len(lines) and lines[i] != EMBED_END:
             i += 1
         if i == len(lines):
             raise ValueError(f"{doc}: {line} has no closing {EMBED_END}")
     return "\n".join(out) + "\n"
+
+
+def _grid_report_text(target: Path) -> str:
+    """The grid report ``target`` rebuilt from its ``grid.json`` and the committed runs."""
+    from .grid import grid_from_dict
+    from .grid_report import grid_reports
+
+    spec = json.loads((target.parent / GRID_FILE).read_text())
+    texts, _ = grid_reports(grid_from_dict(spec, spec.get("name", "grid")), target.parent.parent)
+    if target.name not in texts:
+        raise ValueError(f"{target}: not a report of its grid ({', '.join(texts)})")
+    return texts[target.name]
+
+
+def _stream_report_text(target: Path) -> str:
+    """The stream report ``target`` rebuilt from a copy of the runs beside it, so the
+    committed report files are left as they are."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in RunDir.EXPORTED:
+            for src in target.parent.glob(f"*/seed*/{name}"):
+                dst = Path(tmp) / src.relative_to(target.parent)
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                dst.write_bytes(src.read_bytes())
+        stream = (target.parent / PLAN_FILE).exists() and json.loads(
+            (target.parent / PLAN_FILE).read_text()
+        ).get("stream")
+        write_report(Path(tmp), stream or target.parent.name, figures=False)
+        return (Path(tmp) / target.name).read_text()

@@ -186,6 +186,11 @@ def before_training_markdown(records: Sequence[RunRecord], stream: str = "") -> 
     return "\n".join(lines) + "\n" + legend
 
 
+def run_minutes(record: RunRecord) -> float:
+    """A run's wall minutes: the sum of its tasks' ``wall_time_s``."""
+    return sum(record.results.get("wall_time_s", [])) / 60
+
+
 def runtime_csv(records: Sequence[RunRecord]) -> str:
     """One line per run: method, seed, wall minutes (sum of the tasks' ``wall_time_s``),
     steps per task (from ``run.json``; empty for runs the benchmark did not launch)."""
@@ -193,7 +198,7 @@ def runtime_csv(records: Sequence[RunRecord]) -> str:
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(["method", "seed", "minutes", "steps_per_task"])
     for r in records:
-        minutes = sum(r.results.get("wall_time_s", [])) / 60
+        minutes = run_minutes(r)
         steps = r.meta.get("steps_per_task")
         writer.writerow([r.method, r.seed, round(minutes, 3), "" if steps is None else steps])
     return buf.getvalue()

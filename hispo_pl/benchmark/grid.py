@@ -1,0 +1,460 @@
+"""A benchmark grid: every (stream, method, seed) of a named set, planned against what is
+already committed, run two lanes at a time and exported as each run finishes, so a grid of
+many hours is finished over several sessions by rerunning one command.
+
+    hispo-pl benchmark --grid paper --out results/grid --export docs/results [--part pointmaze]
+
+A grid is a YAML file (``configs/grids/<name>.yaml``): its streams (and named parts of them),
+methods, seeds, the budget, and sweeps. A swept method (L2's and EWC's λ) first runs every value
+on one seed; its seeds then run at the value with the best PER, and the sweep's own run of that
+value stands for the seed it ran, since the two commands differ only in where they log.
+Planning is pure (:func:`plan_cells` reads results through a function); :func:`run_grid` runs.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import ConfigError, RunDirError
+from ..rundir import RunDir
+from .configs import configured_value
+from .plan import PLAN_FILE, PlannedRun, plan_run, planned_tasks, stream_config_path
+
+GRIDS_DIR = "grids"
+GRID_FILE = "grid.json"  # the grid's definition, beside its reports
+SWEEPS_DIR = "sweeps"  # <root>/<stream>/sweeps/<label>/seed<S>: kept out of the stream's table
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """Values of one setting of a method, each run on ``seed``; the best PER is kept."""
+
+    method: str
+    key: str  # a dotted fit flag, e.g. model.init_args.penalty_lambda
+    values: tuple[float, ...]
+    name: str = "value"  # in run labels: l2-lambda0.1
+    seed: int = 0
+
+    def label(self, value: float) -> str:
+        return f"{self.method}-{self.name}{value:g}"
+
+
+@dataclass(frozen=True)
+class Grid:
+    """A grid's definition (``configs/grids/<name>.yaml``)."""
+
+    name: str
+    streams: tuple[str, ...]
+    methods: tuple[str, ...]
+    seeds: tuple[int, ...]
+    parts: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    sweeps: dict[str, Sweep] = field(default_factory=dict)
+    steps_per_task: int | None = None
+    extra: tuple[str, ...] = ()  # fit arguments of every run
+
+    def to_dict(self) -> dict:
+        return {
+            "name": self.name,
+            "streams": list(self.streams),
+            "methods": list(self.methods),
+            "seeds": list(self.seeds),
+            "parts": {k: list(v) for k, v in self.parts.items()},
+            "sweeps": {
+                m: {"key": s.key, "values": list(s.values), "name": s.name, "seed": s.seed}
+                for m, s in self.sweeps.items()
+            },
+            "steps_per_task": self.steps_per_task,
+            "extra": list(self.extra),
+        }
+
+
+def _list(raw: dict, key: str, where: str) -> list:
+    value = raw.get(key)
+    if not isinstance(value, list) or not value:
+        raise ConfigError(f"{where}: `{key}` must be a non-empty list")
+    return value
+
+
+def grid_from_dict(raw: dict, name: str, where: str = "grid") -> Grid:
+    """A :class:`Grid` from its YAML or JSON mapping.
+
+    Raises:
+        ConfigError: a missing or malformed entry, named with what to write instead.
+    """
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{where}: a grid is a mapping with streams, methods and seeds")
+    unknown = set(raw) - {
+        "name", "streams", "methods", "seeds", "parts", "sweeps", "steps_per_task", "extra"
+    }  # fmt: skip
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+    streams = [str(s) for s in _list(raw, "streams", where)]
+    methods = [str(m) for m in _list(raw, "methods", where)]
+    seeds = raw.get("seeds", 3)
+    seeds = list(range(seeds)) if isinstance(seeds, int) else seeds
+    if not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
+        raise ConfigError(f"{where}: `seeds` is a count or a list of non-negative integers")
+    parts = {str(k): tuple(str(s) for s in v) for k, v in (raw.get("parts") or {}).items()}
+    for part, members in parts.items():
+        if set(members) - set(streams):
+            raise ConfigError(f"{where}: part {part} names streams the grid does not list")
+    sweeps = {}
+    for method, spec in (raw.get("sweeps") or {}).items():
+        if method not in methods:
+            raise ConfigError(f"{where}: sweep of {method}, which is not among the methods")
+        if not isinstance(spec, dict) or "key" not in spec or not spec.get("values"):
+            raise ConfigError(f"{where}: sweep of {method} needs `key` and `values`")
+        sweeps[method] = Sweep(
+            method,
+            str(spec["key"]),
+            tuple(float(v) for v in spec["values"]),
+            str(spec.get("name", "value")),
+            int(spec.get("seed", seeds[0])),
+        )
+    steps = raw.get("steps_per_task")
+    return Grid(
+        str(raw.get("name", name)),
+        tuple(streams),
+        tuple(methods),
+        tuple(seeds),
+        parts,
+        sweeps,
+        None if steps is None else int(steps),
+        tuple(str(a) for a in raw.get("extra") or ()),
+    )
+
+
+def load_grid(spec: str, config_dir: Path) -> Grid:
+    """The grid ``config_dir/grids/<spec>.yaml``, or the YAML file ``spec``.
+
+    Raises:
+        ConfigError: no such grid (the message lists the known ones), or a malformed one.
+    """
+    import yaml
+
+    path = Path(spec)
+    if path.suffix not in (".yaml", ".yml") or not path.is_file():
+        path = Path(config_dir) / GRIDS_DIR / f"{spec}.yaml"
+    if not path.is_file():
+        known = sorted(p.stem for p in (Path(config_dir) / GRIDS_DIR).glob("*.yaml"))
+        raise ConfigError(
+            f"--grid {spec}: no {path}; known grids: {', '.join(known) or 'none'} (or a YAML path)"
+        )
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{path}: not YAML ({e.__class__.__name__})") from None
+    return grid_from_dict(raw, path.stem, str(path))
+
+
+def grid_streams(grid: Grid, part: str | None) -> list[str]:
+    """The streams of ``part``: a part's name, a stream of the grid, or a comma list of
+    either; every stream without one.
+
+    Raises:
+        ConfigError: a name that is neither (the message lists both)."""
+    if not part:
+        return list(grid.streams)
+    chosen: list[str] = []
+    for name in (p.strip() for p in part.split(",") if p.strip()):
+        if name in grid.parts:
+            chosen += grid.parts[name]
+        elif name in grid.streams:
+            chosen.append(name)
+        else:
+            raise ConfigError(
+                f"--part {name}: not a part ({', '.join(grid.parts) or 'none'}) or stream "
+                f"({', '.join(grid.streams)}) of grid {grid.name}"
+            )
+    return list(dict.fromkeys(chosen))
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One run of a grid: ``label`` names its folder (the method, or a sweep's value)."""
+
+    stream: str
+    label: str
+    method: str
+    seed: int
+    extra: tuple[str, ...] = ()
+    sweep: bool = False
+
+    @property
+    def name(self) -> str:
+        return f"{self.stream}/{self.label}/seed{self.seed}"
+
+    def result_dir(self, root: Path) -> Path:
+        """Where its committed files live under the results root."""
+        stream_dir = Path(root) / self.stream
+        return (
+            (stream_dir / SWEEPS_DIR if self.sweep else stream_dir)
+            / self.label
+            / (f"seed{self.seed}")
+        )
+
+
+def chosen_value(sweep: Sweep, per: dict[float, float | None]) -> float | None:
+    """The value of ``sweep`` with the best PER (``per[value]``; None while not run), None
+    until every value has a result; a tie goes to the value listed first."""
+    scores = [per.get(v) for v in sweep.values]
+    if any(s is None for s in scores):
+        return None
+    return sweep.values[max(range(len(scores)), key=lambda i: (scores[i], -i))]
+
+
+def _flag(sweep: Sweep, value: float) -> tuple[str, str]:
+    return (f"--{sweep.key}", f"{value:g}")
+
+
+@dataclass
+class GridPlan:
+    """What a grid still needs: runs to train, runs to copy from an identical one (target,
+    source), and lines for what waits on something else."""
+
+    todo: list[Cell] = field(default_factory=list)
+    derived: list[tuple[Cell, Cell]] = field(default_factory=list)
+    waiting: list[str] = field(default_factory=list)
+    done: list[Cell] = field(default_factory=list)
+
+
+def plan_cells(
+    grid: Grid, streams: Sequence[str], committed_per: Callable[[Cell], float | None]
+) -> GridPlan:
+    """Every cell of ``streams``, sorted into done (``committed_per`` gives its PER), to run,
+    to derive and waiting. Streams outer, then the grid's methods, then seeds."""
+    plan = GridPlan()
+    for stream in streams:
+        for method in grid.methods:
+            sweep = grid.sweeps.get(method)
+            if sweep is None:
+                cells = [Cell(stream, method, method, s) for s in grid.seeds]
+                for cell in cells:
+                    (plan.done if committed_per(cell) is not None else plan.todo).append(cell)
+                continue
+            sweep_cells = {
+                v: Cell(stream, sweep.label(v), method, sweep.seed, _flag(sweep, v), True)
+                for v in sweep.values
+            }
+            for cell in sweep_cells.values():
+                (plan.done if committed_per(cell) is not None else plan.todo).append(cell)
+            best = chosen_value(sweep, {v: committed_per(c) for v, c in sweep_cells.items()})
+            if best is None:
+                plan.waiting.append(
+                    f"{stream}/{method}: {len(grid.seeds)} seed(s) wait for the {sweep.name} sweep"
+                )
+                continue
+            for seed in grid.seeds:
+                cell = Cell(stream, method, method, seed, _flag(sweep, best))
+                if committed_per(cell) is not None:
+                    plan.done.append(cell)
+                elif seed == sweep.seed:
+                    plan.derived.append((cell, sweep_cells[best]))
+                else:
+                    plan.todo.append(cell)
+    return plan
+
+
+def cell_run(
+    cell: Cell, grid: Grid, config_dir: Path, work: Path, num_threads: int = 1
+) -> PlannedRun:
+    """The benchmark run of ``cell``, logging to ``work/<stream>/runs/<label>/seed<S>``."""
+    config_dir = Path(config_dir)
+    return plan_run(
+        stream_config_path(cell.stream, config_dir),
+        (config_dir / "methods" / f"{cell.method}.yaml").resolve(),
+        cell.label,
+        cell.seed,
+        Path(work) / cell.stream,
+        num_threads,
+        grid.steps_per_task,
+        (*grid.extra, *cell.extra),
+    )
+
+
+def committed_reader(grid: Grid, config_dir: Path, root: Path) -> Callable[[Cell], float | None]:
+    """``committed_per(cell)``: the PER of the cell's committed run under ``root``, or None
+    when there is none, its files cannot be read, it trained other tasks than the grid's
+    stream (an earlier version of the stream) or, for a cell with a setting of its own, it
+    ran another value of it. A cell without a committed PER is run again."""
+    tasks: dict[str, list[str]] = {}
+
+    def committed_per(cell: Cell) -> float | None:
+        run = RunDir(cell.result_dir(root))
+        if not run.has_results():
+            return None
+        try:
+            results = run.read_results()
+        except RunDirError:
+            return None
+        if cell.stream not in tasks:
+            tasks[cell.stream] = planned_tasks(cell_run(cell, grid, config_dir, root))
+        if results.get("stream") != tasks[cell.stream]:
+            return None
+        for key, value in zip(cell.extra[::2], cell.extra[1::2], strict=True):
+            saved = configured_value([run.config_file], [], key.removeprefix("--"))
+            if saved is None or float(saved) != float(value):
+                return None
+        return float(results["PER"])
+
+    return committed_per
+
+
+def export_cell(run_dir: Path, cell: Cell, root: Path, derived_from: Cell | None = None) -> Path:
+    """Copy a finished run's small files to the cell's committed place (and the stream's
+    ``benchmark.json`` for its report title); a derived cell's ``run.json`` names its source."""
+    target = cell.result_dir(root)
+    target.mkdir(parents=True, exist_ok=True)
+    for name in RunDir.EXPORTED:
+        if (Path(run_dir) / name).exists():
+            shutil.copyfile(Path(run_dir) / name, target / name)
+    if derived_from is not None:
+        meta = RunDir(target).read_run_record()
+        meta.update(method=cell.label, derived_from=derived_from.name)
+        RunDir(target).write_run_record(meta)
+    plan_file = Path(root) / cell.stream / PLAN_FILE
+    if not plan_file.exists():
+        plan_file.write_text(json.dumps({"stream": cell.stream}, indent=1))
+    return target
+
+
+def estimated_minutes(cell: Cell, root: Path, streams: Sequence[str]) -> float | None:
+    """A cell's likely wall minutes from committed runs: the mean of its method on its stream,
+    else of its method on the other streams, else of every run on its stream."""
+    from .records import RunRecord
+    from .tables import run_minutes
+
+    def mean(pattern: str, where: Sequence[str]) -> float | None:
+        found = []
+        for stream in where:
+            for seed_dir in sorted((Path(root) / stream).glob(pattern)):
+                run = RunDir(seed_dir)
+                if run.has_results():
+                    found.append(run_minutes(RunRecord("", 0, run.read_results())))
+        return sum(found) / len(found) if found else None
+
+    for pattern, where in (
+        (f"{cell.method}/seed*", [cell.stream]),
+        (f"{cell.method}/seed*", streams),
+        ("*/seed*", [cell.stream]),
+    ):
+        minutes = mean(pattern, where)
+        if minutes is not None:
+            return minutes
+    return None
+
+
+def describe(plan: GridPlan, estimate: Callable[[Cell], float | None]) -> list[str]:
+    """The plan as printed lines: per stream, what is done, to run (with its estimated
+    minutes from committed runs of the same method), derived and waiting."""
+    lines = []
+    streams = dict.fromkeys(
+        c.stream for c in [*plan.done, *plan.todo] + [t for t, _ in plan.derived]
+    )
+    for stream in streams:
+        todo = [c for c in plan.todo if c.stream == stream]
+        minutes = [estimate(c) for c in todo]
+        known = [m for m in minutes if m is not None]
+        cost = f" (about {sum(known) / 60:.1f} h of runs)" if known else ""
+        if known and len(known) < len(minutes):
+            cost = f" (about {sum(known) / 60:.1f} h for the {len(known)} with a timing)"
+        lines.append(
+            f"[grid] {stream}: {sum(c.stream == stream for c in plan.done)} done, "
+            f"{len(todo)} to run{cost}, "
+            f"{sum(t.stream == stream for t, _ in plan.derived)} to copy from their sweep"
+        )
+    lines += [f"[grid] {line}" for line in plan.waiting]
+    return lines
+
+
+def run_grid(
+    grid: Grid,
+    streams: Sequence[str],
+    config_dir: Path,
+    work: Path,
+    root: Path,
+    workers: int = 2,
+    num_threads: int = 1,
+    dry_run: bool = False,
+    write_reports: Callable[[Sequence[str]], None] | None = None,
+) -> int:
+    """Plan, run what is left ``workers`` at a time, export each finished run, and plan again
+    until nothing new can start (a sweep's end lets its method's seeds start). Returns the
+    number of failed runs."""
+    committed_per = committed_reader(grid, config_dir, root)
+
+    def estimate(cell: Cell) -> float | None:
+        return estimated_minutes(cell, root, grid.streams)
+
+    failed = 0
+    attempted: set[str] = set()
+    while True:
+        plan = plan_cells(grid, streams, committed_per)
+        for target, source in plan.derived:
+            export_cell(source.result_dir(root), target, root, derived_from=source)
+            print(f"[grid] {target.name}: the same run as {source.name}, copied")
+        for line in describe(plan, estimate):
+            print(line)
+        todo = [c for c in plan.todo if c.name not in attempted]
+        if dry_run:
+            for cell in todo:
+                run = cell_run(cell, grid, config_dir, work, num_threads)
+                print(f"[grid] {cell.name}: {' '.join(run.command(sys.executable))}")
+            return 0
+        if not todo:
+            break
+        attempted |= {c.name for c in todo}
+        failed += _run_cells(
+            todo, grid, config_dir, work, root, workers, num_threads, write_reports
+        )
+    if write_reports is not None:
+        write_reports(list(streams))
+    return failed
+
+
+def _run_cells(
+    todo: Sequence[Cell],
+    grid: Grid,
+    config_dir: Path,
+    work: Path,
+    root: Path,
+    workers: int,
+    num_threads: int,
+    write_reports: Callable[[Sequence[str]], None] | None,
+) -> int:
+    """Run ``todo`` ``workers`` at a time, exporting each as it finishes; the failures."""
+    from .configs import datasets_needed, prepare_datasets
+    from .launch import Reporter, run_env, run_local
+    from .plan import pending_runs
+
+    runs = [cell_run(c, grid, config_dir, work, num_threads) for c in todo]
+    cells = {run.run_dir: cell for run, cell in zip(runs, todo, strict=True)}
+    pending = []
+    for stream in dict.fromkeys(c.stream for c in todo):
+        pending += pending_runs([r for r in runs if cells[r.run_dir].stream == stream], stream)
+    needed: dict[str, int] = {}
+    for run in pending:
+        for name, episodes in datasets_needed(run.configs, run.argv).items():
+            needed[name] = max(needed.get(name, 0), episodes)
+    prepare_datasets(needed)
+    reporter = Reporter(total=len(pending))
+
+    def finished(run: PlannedRun, outcome: dict) -> None:
+        reporter(run, outcome)
+        if outcome["results"] is None:
+            return
+        cell = cells[run.run_dir]
+        print(f"[grid] {cell.name}: exported to {export_cell(run.run_dir, cell, root)}")
+        if write_reports is not None:
+            write_reports([cell.stream])
+
+    try:
+        run_local(pending, workers, finished, run_env(num_threads))
+    finally:
+        reporter.close()
+    return len(reporter.failed)
