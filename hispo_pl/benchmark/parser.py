@@ -16,7 +16,11 @@ def cpu_count() -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="hispo-pl benchmark",
-        usage="hispo-pl benchmark --stream STREAM --out OUT [options] [-- fit overrides...]",
+        usage=(
+            "hispo-pl benchmark --stream STREAM --out OUT [options] [-- fit overrides...]\n"
+            "       hispo-pl benchmark --grid NAME --out WORK --export ROOT [--part PART] "
+            "[options]"
+        ),
         description=(
             "Run every (method, seed) of a stream as a `hispo-pl fit` subprocess logging to\n"
             "OUT/runs/<method>/seed<S>/ (resumable: runs with a results.json are skipped,\n"
