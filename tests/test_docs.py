@@ -70,3 +70,10 @@ def test_embedded_reports_equal_their_rebuilt_run_files(page):
         f"{name} differs from its run files: rebuild it with\n"
         f"  hispo-pl benchmark --report-only --docs {name}"
     )
+
+
+def test_every_committed_results_folder_is_indexed():
+    """docs/results/README.md names every folder under docs/results, so none is a mystery."""
+    index = (ROOT / "docs/results/README.md").read_text()
+    folders = sorted(p.name for p in (ROOT / "docs/results").iterdir() if p.is_dir())
+    assert [f for f in folders if f"`{f}/`" not in index] == []

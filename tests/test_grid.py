@@ -196,6 +196,7 @@ def test_grid_end_to_end_exports_derives_and_resumes(tiny_umaze, tmp_path, capsy
     assert meta["derived_from"] == f"pointmaze-1/scn-batch{best}/seed0"
     seed1 = json.loads((root / "pointmaze-1/scn/seed1/run.json").read_text())
     assert seed1["argv"][-2:] == ["--data.batch_size", str(best)]
+    assert seed1["machine"]["cpus"] >= 1 and len((seed1["commit"] or "x" * 40)[:40]) == 40
     assert "| scn | 2 |" in (root / "pointmaze-1/table.md").read_text()
     report = root / "grid-tiny"
     assert {p.name for p in report.iterdir()} >= {"grid.json", "aggregate.md", "sweeps.md"}

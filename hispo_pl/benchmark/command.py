@@ -186,7 +186,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     }
     atomic_write_text(out / plan.PLAN_FILE, json.dumps(settings, indent=1))
 
-    todo = plan.pending_runs(runs, stream_name)
+    todo = plan.pending_runs(runs, stream_name, plan.provenance())
     print(
         f"[benchmark] {len(runs)} runs ({len(methods)} methods x {len(seeds)} seeds), "
         f"{len(todo)} to run with the {args.launcher} launcher, {args.num_threads} thread(s) "

@@ -430,13 +430,14 @@ def _run_cells(
     """Run ``todo`` ``workers`` at a time, exporting each as it finishes; the failures."""
     from .configs import datasets_needed, prepare_datasets
     from .launch import Reporter, run_env, run_local
-    from .plan import pending_runs
+    from .plan import pending_runs, provenance
 
     runs = [cell_run(c, grid, config_dir, work, num_threads) for c in todo]
     cells = {run.run_dir: cell for run, cell in zip(runs, todo, strict=True)}
-    pending = []
+    pending, made_on = [], provenance()
     for stream in dict.fromkeys(c.stream for c in todo):
-        pending += pending_runs([r for r in runs if cells[r.run_dir].stream == stream], stream)
+        mine = [r for r in runs if cells[r.run_dir].stream == stream]
+        pending += pending_runs(mine, stream, made_on)
     needed: dict[str, int] = {}
     for run in pending:
         for name, episodes in datasets_needed(run.configs, run.argv).items():

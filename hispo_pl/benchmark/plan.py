@@ -236,10 +236,51 @@ def foreign_runs(runs: Sequence[PlannedRun], stream: str) -> list[str]:
     return found
 
 
-def pending_runs(runs: Sequence[PlannedRun], stream: str | None) -> list[PlannedRun]:
+def provenance() -> dict:
+    """Where a run is made: the code's git commit (``+dirty`` with uncommitted changes; None
+    outside a checkout) and the machine, for the run's ``run.json``."""
+    import importlib.metadata
+    import platform
+    import subprocess
+
+    from .parser import cpu_count
+
+    root = Path(__file__).resolve().parents[2]
+
+    def git(*args: str) -> str | None:
+        try:
+            done = subprocess.run(
+                ["git", "-C", str(root), *args], capture_output=True, text=True, timeout=10
+            )
+        except (OSError, subprocess.TimeoutExpired):
+            return None
+        return done.stdout.strip() if done.returncode == 0 else None
+
+    commit = git("rev-parse", "HEAD")
+    if commit and git("status", "--porcelain", "--untracked-files=no"):
+        commit += "+dirty"
+    try:
+        torch_version = importlib.metadata.version("torch")
+    except importlib.metadata.PackageNotFoundError:
+        torch_version = None
+    return {
+        "commit": commit,
+        "machine": {
+            "platform": platform.platform(),
+            "cpus": cpu_count(),
+            "python": platform.python_version(),
+            "torch": torch_version,
+        },
+    }
+
+
+def pending_runs(
+    runs: Sequence[PlannedRun], stream: str | None, made_on: dict | None = None
+) -> list[PlannedRun]:
     """The runs without results (:attr:`PlannedRun.results_path`: new or interrupted), each
-    with a fresh ``run.json`` (method, seed, stream, budget, command); prints a line for each
-    skipped or resumed run, noting when its command changed since the first launch."""
+    with a fresh ``run.json`` (method, seed, stream, budget, command, and ``made_on``: the
+    :func:`provenance` of this launch); prints a line for each skipped or resumed run, noting
+    when its command changed since the first launch."""
     todo = []
     for run in runs:
         run_dir = RunDir(run.run_dir)
@@ -260,6 +301,7 @@ def pending_runs(runs: Sequence[PlannedRun], stream: str | None) -> list[Planned
             "steps_per_task": run.steps_per_task,
             "argv": list(run.argv),
             "command": shlex.join(run.command(sys.executable)),
+            **(made_on or {}),
         }
         run_dir.write_run_record(meta)
         todo.append(run)
