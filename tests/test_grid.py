@@ -66,6 +66,13 @@ def test_a_malformed_grid_is_refused_in_one_line(change, message):
         gr.grid_from_dict({**GRID, **change}, "g")
 
 
+def test_grid_refuses_fit_arguments_of_the_command_line(capsys):
+    args = ["benchmark", "--grid", "paper", "--out", "w", "--export", "r", "--", "--seed", "1"]
+    with pytest.raises(SystemExit):
+        cli_main(args)
+    assert "put fit arguments and the budget in the grid file" in capsys.readouterr().err
+
+
 def test_parts_streams_and_unknown_names():
     grid = gr.grid_from_dict(GRID, "g")
     assert gr.grid_streams(grid, None) == ["pointmaze-1", "pointmaze-2"]
@@ -150,6 +157,8 @@ def test_committed_runs_of_an_older_stream_or_another_value_are_not_done(tmp_pat
     assert reader(right) == 0.5 and reader(wrong) is None
     (old.result_dir(tmp_path) / "results.json").write_text("{")  # cut short: run it again
     assert reader(old) is None
+    (ok.result_dir(tmp_path) / "run.json").write_text(json.dumps({"steps_per_task": 100}))
+    assert reader(ok) is None  # another budget than the stream config's
 
 
 # --- end to end -------------------------------------------------------------------------------
@@ -226,7 +235,7 @@ def test_grid_report_embeds_rebuild_from_committed_files(tmp_path):
     root = tmp_path / "results"
     for stream in ("pointmaze-1", "pointmaze-2"):
         shutil.copytree(ROOT / "docs/results" / stream, root / stream)
-    grid = gr.grid_from_dict({**GRID, "methods": ["scn", "hispo"], "seeds": 3}, "g")
+    grid = gr.grid_from_dict({**GRID, "methods": ["scn", "hispo"], "seeds": 3, "sweeps": {}}, "g")
     gp.write_grid_report(grid, root, figures=False)
     aggregate = (root / "grid-g/aggregate.md").read_text()
     assert "| scn | 2 of 2 |" in aggregate and "| hispo | 2 of 2 |" in aggregate

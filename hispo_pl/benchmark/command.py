@@ -56,9 +56,12 @@ def _grid_main(parser, args, extra: list[str]) -> int:
             grid = replace(grid, methods=tuple(plan.select_methods(args.methods, grid.methods)))
     except (ConfigError, ValueError) as e:
         parser.error(str(e))
-    grid = replace(grid, extra=(*grid.extra, *extra))
-    if args.steps_per_task is not None:
-        grid = replace(grid, steps_per_task=args.steps_per_task)
+    if extra or args.steps_per_task is not None:
+        parser.error(
+            "--grid runs what its file defines, and skips what was committed with it: put fit "
+            "arguments and the budget in the grid file (`extra`, `steps_per_task`), as a grid "
+            "of its own with its own --export"
+        )
     root = Path(args.export)
 
     def reports(changed: Sequence[str]) -> None:

@@ -280,21 +280,30 @@ def cell_run(
 def committed_reader(grid: Grid, config_dir: Path, root: Path) -> Callable[[Cell], float | None]:
     """``committed_per(cell)``: the PER of the cell's committed run under ``root``, or None
     when there is none, its files cannot be read, it trained other tasks than the grid's
-    stream (an earlier version of the stream) or, for a cell with a setting of its own, it
-    ran another value of it. A cell without a committed PER is run again."""
+    stream (an earlier version of the stream) or at another budget, or, for a cell with a
+    setting of its own, it ran another value of it. A cell without a committed PER is run
+    again."""
     tasks: dict[str, list[str]] = {}
+    budgets: dict[str, int | None] = {}
 
     def committed_per(cell: Cell) -> float | None:
         run = RunDir(cell.result_dir(root))
         if not run.has_results():
             return None
         try:
-            results = run.read_results()
+            results, meta = run.read_results(), run.read_run_record()
         except RunDirError:
             return None
         if cell.stream not in tasks:
-            tasks[cell.stream] = planned_tasks(cell_run(cell, grid, config_dir, root))
+            planned = cell_run(cell, grid, config_dir, root)
+            tasks[cell.stream], budgets[cell.stream] = (
+                planned_tasks(planned),
+                planned.steps_per_task,
+            )
         if results.get("stream") != tasks[cell.stream]:
+            return None
+        steps = meta.get("steps_per_task")
+        if steps is not None and steps != budgets[cell.stream]:
             return None
         for key, value in zip(cell.extra[::2], cell.extra[1::2], strict=True):
             saved = configured_value([run.config_file], [], key.removeprefix("--"))
