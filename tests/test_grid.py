@@ -267,3 +267,15 @@ def test_beside_paper_puts_the_papers_figure_next_to_ours(tmp_path):
     assert frz.startswith("| frz | 3 | 34.2 ± 2.6 | 37.8 ± 0.8 |")  # the paper's FZ, Table 6
     assert "| pnn |  | 99.4 ± 0.8 |  | 0.0 ± 0.0 |" in text  # not run here: an empty cell
     assert "| videogame-2 |" not in text and "### videogame-2 (the paper's Table 8)" in text
+
+
+def test_summary_bolds_the_best_and_counts_seeds_other_than_three(tmp_path):
+    for method in ("hispo", "scn"):
+        shutil.copytree(
+            ROOT / f"docs/results/pointmaze-1/{method}", tmp_path / f"pointmaze-1/{method}"
+        )
+    shutil.copytree(ROOT / "docs/results/pointmaze-1/scn/seed0", tmp_path / "pointmaze-2/scn/seed0")
+    text = gp.summary_markdown(tmp_path)
+    assert "| PointMaze-1 | **99.4 ± 0.1 / 3.37** | 98.8 ± 0.4 / 4.00 | – |" in text
+    assert "| PointMaze-2 | – | **99.0 / 4.00 (1 seed)** | – |" in text
+    assert text.rstrip().splitlines()[-3].startswith("| VideoGame-2 | – |")

@@ -224,6 +224,50 @@ def beside_paper_markdown(root: Path) -> str:
     return "\n".join(lines) + legend
 
 
+SUMMARY_METHODS = ("hispo", "scn", "ftn", "pnn", "cspo", "csp", "hilow")
+NAMES = {"hispo": "HiSPO", "scn": "SCN", "ftn": "FTN", "pnn": "PNN", "cspo": "CSPO"}
+NAMES |= {"csp": "CSP", "hilow": "HiLOW"}
+
+
+def summary_markdown(root: Path) -> str:
+    """Where HiSPO stands: PER / MEM of the subspace methods and the expanding baselines on
+    every stream of the paper's tables, the best PER of a row in bold, the paper's HiSPO in the
+    last column."""
+    head = " | ".join("HiSPO PER / MEM" if m == "hispo" else NAMES[m] for m in SUMMARY_METHODS)
+    lines = [
+        "# Where HiSPO stands\n",
+        f"| stream | {head} | paper HiSPO |",
+        "|---|" + "---|" * (len(SUMMARY_METHODS) + 1),
+    ]
+    for stream in paper.PER_STREAM:
+        ours = _ours(stream_records(root, stream))
+        pers = [ours[m]["PER"][0] for m in SUMMARY_METHODS if m in ours and ours[m]["PER"]]
+        best = max(pers, default=None)
+        cells = []
+        for method in SUMMARY_METHODS:
+            row = ours.get(method)
+            if row is None or row["PER"] is None:
+                cells.append("–")
+                continue
+            seeds = int(row["seeds"][0])
+            per = f"{row['PER'][0]:.1f}" if seeds == 1 else _stat(row["PER"])
+            text = per + ("" if row["MEM"] is None else f" / {row['MEM'][0]:.2f}")
+            if seeds != 3:
+                text += f" ({seeds} seed{'s' if seeds > 1 else ''})"
+            cells.append(f"**{text}**" if row["PER"][0] == best else text)
+        theirs = paper.paper_row(stream, "hispo")
+        reference = f"{theirs['PER'][0]:.1f} / {theirs['MEM'][0]:.1f}" if theirs else ""
+        title = stream.replace("pointmaze", "PointMaze").replace("antmaze", "AntMaze")
+        title = title.replace("videogame", "VideoGame")
+        lines.append(f"| {title} | " + " | ".join(cells) + f" | {reference} |")
+    legend = (
+        "\nPER (success ×100, mean ± std over seeds) / MEM; three seeds where no count is "
+        "given; the best PER of each stream in bold. Rebuilt from the runs under "
+        "docs/results/<stream>/.\n"
+    )
+    return "\n".join(lines) + "\n" + legend
+
+
 def sweep_per(root: Path, stream: str, label: str, seed: int) -> float | None:
     run = RunDir(Path(root) / stream / SWEEPS_DIR / label / f"seed{seed}")
     return float(run.read_results()["PER"]) if run.has_results() else None
@@ -340,7 +384,7 @@ def plot_iqm_vs_memory(rows: Sequence[AggregateRow], path: Path, title: str) -> 
     return True
 
 
-REPORTS = ("aggregate.md", "beside-paper.md", "sweeps.md", "cost.md")
+REPORTS = ("summary.md", "aggregate.md", "beside-paper.md", "sweeps.md", "cost.md")
 
 
 def grid_reports(grid: Grid, root: Path) -> tuple[dict[str, str], list[AggregateRow]]:
@@ -348,6 +392,7 @@ def grid_reports(grid: Grid, root: Path) -> tuple[dict[str, str], list[Aggregate
     by_stream = {s: stream_records(root, s) for s in grid.streams}
     rows = aggregate_rows(grid, by_stream)
     texts = {
+        "summary.md": summary_markdown(root),
         "aggregate.md": aggregate_markdown(grid, rows),
         "beside-paper.md": beside_paper_markdown(root),
         "sweeps.md": sweeps_markdown(grid, root),
