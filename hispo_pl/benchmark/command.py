@@ -74,6 +74,10 @@ def _grid_main(parser, args, extra: list[str]) -> int:
             print("[grid] no aggregate intervals: pip install 'hispo-pl[stats]' (rliable)")
 
     if args.report_only:
+        for stream in streams:
+            with suppress(FileNotFoundError):  # nothing committed for it yet
+                for path in write_report(root / stream, stream):
+                    print(f"[benchmark] wrote {path}")
         for path in write_grid_report(grid, root):
             print(f"[benchmark] wrote {path}")
         return 0
@@ -104,17 +108,28 @@ def _grid_main(parser, args, extra: list[str]) -> int:
     return 1 if failed else 0
 
 
+def _rebuild_pages(pages: Sequence[str]) -> None:
+    for page in pages:
+        Path(page).write_text(embed_reports(Path(page)))
+        print(f"[benchmark] rebuilt the reports embedded in {page}")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     own, extra = _split_extra(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     args = parser.parse_args(own)
+    if args.docs and not args.report_only:
+        parser.error("--docs rebuilds pages from committed runs: add --report-only")
+    missing = [page for page in args.docs or () if not Path(page).is_file()]
+    if missing:
+        parser.error(f"--docs {missing[0]}: no such page (a markdown file with report embeds)")
     if args.grid:
-        return _grid_main(parser, args, extra)
+        code = _grid_main(parser, args, extra)
+        if code == 0:
+            _rebuild_pages(args.docs or ())
+        return code
     if args.report_only and args.docs:
-        if not Path(args.docs).is_file():
-            parser.error(f"--docs {args.docs}: no such page (a markdown file with report embeds)")
-        Path(args.docs).write_text(embed_reports(Path(args.docs)))
-        print(f"[benchmark] rebuilt the reports embedded in {args.docs}")
+        _rebuild_pages(args.docs)
         return 0
     if not args.out:
         parser.error("--out is required (unless --report-only --docs PAGE)")

@@ -119,9 +119,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--docs",
         metavar="PAGE",
+        nargs="+",
         default=None,
-        help="with --report-only: rebuild every report embedded in a documentation page "
-        "(e.g. docs/results.md) from its committed run files",
+        help="with --report-only: rebuild every report embedded in these documentation pages "
+        "(e.g. README.md docs/results.md) from their committed run files; with --grid, after "
+        "the grid's own reports",
     )
     parser.add_argument(
         "--export",
