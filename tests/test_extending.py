@@ -69,7 +69,12 @@ def _tiny(args: list[str]) -> list[str]:
     the tiny U-maze data (pointmaze-1's mazes replaced by TINY_STREAM), single tasks on 5
     steps."""
     extra = ["--trainer.max_steps", "5", "--data.batch_size", "64"]
-    extra += ["--trainer.callbacks.init_args.episodes", "2", "--trainer.enable_progress_bar", "false"]
+    extra += [
+        "--trainer.callbacks.init_args.episodes",
+        "2",
+        "--trainer.enable_progress_bar",
+        "false",
+    ]
     configs = [args[i + 1] for i, a in enumerate(args) if a == "--config"]
     stream = next((c for c in configs if "/streams/" in c), None)
     if stream is not None:
@@ -105,9 +110,13 @@ def _run(section: str, capsys) -> str:
 
 def test_the_guide_has_every_recipe():
     assert {"(a)", "(b)", "(c)", "(d)"} <= set(SECTIONS)
-    assert all(any(lang == "python" and not target for lang, target, _ in SECTIONS[s]) for s in ("(a)", "(c)"))
+    assert all(
+        any(lang == "python" and not target for lang, target, _ in SECTIONS[s])
+        for s in ("(a)", "(c)")
+    )
     assert {"mypkg/__init__.py", "mypkg/method.py", "mypkg/logger.py"} <= set(FILES)
-    assert all(any(lang == "bash" for lang, _, _ in SECTIONS[s]) for s in "(a) (b) (c) (d)".split())
+    recipes = ["(a)", "(b)", "(c)", "(d)"]
+    assert all(any(lang == "bash" for lang, _, _ in SECTIONS[s]) for s in recipes)
 
 
 def _private_names(source: str) -> list[str]:
