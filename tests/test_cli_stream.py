@@ -192,8 +192,8 @@ def test_a_stream_on_a_minari_dataset_names_it_and_its_episodes(tiny_umaze, tmp_
     args = tiny_stream_args("ftn", tmp_path, stream, "--data.dataset", "umaze-v1")
     assert main(args) == 0
     out = capsys.readouterr().out
-    assert "task 1/2: pointmaze-umaze-N on umaze-v1 (5 episodes), 5 steps" in out
-    assert "task 2/2: pointmaze-umaze-PO on umaze-v1 (5 episodes)" in out
+    assert "task 1/2: pointmaze-umaze-N from umaze-v1 (5 episodes), 5 steps" in out
+    assert "task 2/2: pointmaze-umaze-PO from umaze-v1 (5 episodes)" in out
     results = json.loads((tmp_path / "pointmaze-1" / "seed0" / "results.json").read_text())
     assert results["datasets"] == [{"dataset": "umaze-v1", "episodes": 5}] * 2
     assert results["stream"] == stream  # the specs as given: a rerun resumes the same run

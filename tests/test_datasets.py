@@ -423,10 +423,10 @@ def test_a_minari_id_without_a_namespace_trains_a_task(minari_home):
     own_minari_dataset("umaze-v0", episodes=4)
     assert load_episodes("umaze-v0").n_episodes == 4
     dm = TaskDataModule(task="pointmaze-umaze-N[500]", dataset="umaze-v0", holdout=0.0)
-    assert dm.describe() == "pointmaze-umaze-N on umaze-v0"
+    assert dm.describe() == "pointmaze-umaze-N from umaze-v0"
     dm.prepare_data()
     assert dm.dataset_use == DatasetUse("umaze-v0", 4)
-    assert dm.describe() == "pointmaze-umaze-N on umaze-v0 (4 episodes)"
+    assert dm.describe() == "pointmaze-umaze-N from umaze-v0 (4 episodes)"
     dm.setup("fit")
     assert dm.data.n_episodes == 4
 

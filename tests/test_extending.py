@@ -183,7 +183,7 @@ def test_your_own_minari_dataset_trains_a_task_and_is_recorded(workdir, capsys):
     out = _run("(c)", capsys)
     result = json.loads(next((workdir / "runs").rglob("result.json")).read_text())
     assert (result["dataset"], result["dataset_episodes"]) == ("mydata/umaze-v0", 12)
-    assert "on mydata/umaze-v0 (12 episodes)" in out and "[500]" not in out
+    assert "from mydata/umaze-v0 (12 episodes)" in out and "[500]" not in out
 
 
 def test_a_logger_of_your_own_gets_the_stream_s_values(workdir, capsys):
@@ -193,3 +193,24 @@ def test_a_logger_of_your_own_gets_the_stream_s_values(workdir, capsys):
     logged = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
     keys = {k for record in logged for k in record}
     assert {"stream/PER", "stream/success/T02"} <= keys
+
+
+def test_every_shipped_method_lists_its_evaluation_last():
+    from hispo_pl.run_checks import callback_order_problem
+
+    for config in sorted((ROOT / "configs" / "methods").glob("*.yaml")):
+        callbacks = yaml.safe_load(config.read_text())["trainer"]["callbacks"]
+        assert callback_order_problem([c["class_path"] for c in callbacks]) is None, config.name
+
+
+def test_a_task_end_callback_after_the_evaluation_is_refused(tmp_path, capsys):
+    """The order the guide asks for is checked: listed after RolloutEvaluation, TaskNetworks
+    would record a task's network after its success row was measured."""
+    method = yaml.safe_load((ROOT / "configs/methods/ftn.yaml").read_text())
+    method["trainer"]["callbacks"].reverse()
+    config = tmp_path / "late.yaml"
+    config.write_text(yaml.safe_dump(method))
+    args = ["fit", "--config", str(ROOT / "configs/streams/pointmaze-1.yaml")]
+    assert main([*args, "--config", str(config)]) == 2
+    err = capsys.readouterr().err
+    assert "TaskNetworks after RolloutEvaluation" in err and "list RolloutEvaluation last" in err

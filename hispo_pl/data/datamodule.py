@@ -274,14 +274,14 @@ class TaskDataModule(L.LightningDataModule):
 
     def describe(self) -> str:
         """The task as the console names it: its spec, or, when a Minari dataset is named for
-        it, the maze and variant on that dataset (with its episode count once opened), since
+        it, the maze and variant and that dataset (with its episode count once opened), since
         the spec's ``[episodes]`` then counts nothing."""
         source = self.dataset_for(self.task)
         if isinstance(dataset_source(source), Task):
             return self.task.spec
         task = self.task
         used = self.dataset_use if self.dataset_use is not None else dataset_id_of(source)
-        return f"{task.family}-{task.maze}-{task.variant} on {used}"
+        return f"{task.family}-{task.maze}-{task.variant} from {used}"
 
     def setup(self, stage: str | None = None) -> None:
         if self.data is None:
