@@ -121,7 +121,7 @@ class HispoCLI(LightningCLI):
             from .console import step_lines
             from .loop import fit_interruptibly
 
-            lines = step_lines(str(datamodule.task), self.trainer.max_steps)
+            lines = step_lines(datamodule.describe(), self.trainer.max_steps)
             if lines is not None:
                 self.trainer.callbacks.append(lines)
             start = time.perf_counter()
@@ -139,13 +139,14 @@ class HispoCLI(LightningCLI):
             return
         last, task = record.evaluation, self.datamodule.task
         print(
-            f"[hispo-pl] {type(self.model).__name__} on {task}: success "
+            f"[hispo-pl] {type(self.model).__name__} on {self.datamodule.describe()}: success "
             f"{100 * last['success']:.1f}% over {record.episodes} episodes, mean episode "
             f"length {last['episode_length']:.1f}{flip_note(last['flip_rate'])}, after "
             f"{last['step']} steps ({self.fit_seconds:.0f} s with evaluations)"
         )
         if self.trainer.log_dir:
-            write_task_result(self.trainer.log_dir, self.model, task, self.fit_seconds)
+            used = self.datamodule.dataset_use
+            write_task_result(self.trainer.log_dir, self.model, task, self.fit_seconds, used)
             print(f"[hispo-pl] TensorBoard logs: {self.trainer.log_dir}")
 
 
@@ -160,14 +161,16 @@ def refuse_unseen_variants(model, datamodule: TaskDataModule) -> None:
         raise ConfigError(unseen_variants_message(unseen, inputs))
 
 
-def write_task_result(log_dir: str, model, task, seconds: float) -> None:
+def write_task_result(log_dir: str, model, task, seconds: float, used=None) -> None:
     """``result.json`` beside a single-task run's logs: its final evaluation (the module's
-    task record), for tables (``benchmarks/single_task_table.py``) without parsing
-    TensorBoard files."""
+    task record) and the dataset it trained on (``used``, a
+    :class:`~hispo_pl.data.datasets.DatasetUse`), for tables
+    (``benchmarks/single_task_table.py``) without parsing TensorBoard files."""
     record = model.task_record
     result = {
         "method": type(model).__name__,
         "task": str(task),
+        **({"dataset": used.dataset, "dataset_episodes": used.episodes} if used else {}),
         "episodes": record.episodes,
         "seconds": round(seconds, 1),
         **{k: float(v) for k, v in record.evaluation.items()},

@@ -244,7 +244,13 @@ class ContinualLoop:
     # --- progress on disk -------------------------------------------------------------------
 
     def _load_progress(self) -> dict:
-        fresh = {"stream": self.stream, "rows": [], "wall_time_s": [], "phase_time_s": []}
+        fresh = {
+            "stream": self.stream,
+            "rows": [],
+            "wall_time_s": [],
+            "phase_time_s": [],
+            "datasets": [],
+        }
         if self.fingerprint is not None:
             fresh["fingerprint"] = self.fingerprint
         progress = self.run_dir.read_progress()  # a malformed file: RunDirError, named
@@ -273,6 +279,8 @@ class ContinualLoop:
             progress["fingerprint"] = self.fingerprint  # a run from before fingerprints
         # a run from before phase times: its finished tasks have none
         progress.setdefault("phase_time_s", [None] * len(progress["rows"]))
+        # ... nor the datasets its finished tasks read
+        progress.setdefault("datasets", [None] * len(progress["rows"]))
         return progress
 
     def _save_progress(self, progress: dict) -> None:
@@ -357,7 +365,8 @@ class ContinualLoop:
         if resume is not None:
             print(f"[hispo-pl] resuming task {task_label(k)} from {partial.name}")
         datamodule = self.make_datamodule(self.stream[k])
-        say(task_header(k, len(self.stream), self.stream[k], trainer.max_steps))
+        datamodule.prepare_data()  # as fit does first: the header can count the dataset's episodes
+        say(task_header(k, len(self.stream), datamodule.describe(), trainer.max_steps))
         fit_start = time.perf_counter()
         fit_interruptibly(trainer, self.module, datamodule, ckpt_path=resume, weights_only=True)
         phases = task_phases(time.perf_counter() - fit_start, self.module.task_record.seconds)
@@ -379,6 +388,7 @@ class ContinualLoop:
         elapsed = time.perf_counter() - start
         progress["wall_time_s"].append(elapsed)
         progress["phase_time_s"].append(phases)
+        progress["datasets"].append(datamodule.dataset_use.as_json())
         self._save_progress(progress)
         partial.unlink(missing_ok=True)
         decisions = self.run_dir.read_decisions()
@@ -395,6 +405,8 @@ class ContinualLoop:
             "R": [[None if math.isnan(v) else v for v in row] for row in R.tolist()],
             "wall_time_s": progress["wall_time_s"],
             "phase_time_s": progress["phase_time_s"],
+            # per task: the Minari id and the episodes it read (None: a task of an older run)
+            "datasets": progress["datasets"],
         }
         out.update(continual_metrics(R, self.scratch_success))
         stored = module_bytes(self.module)

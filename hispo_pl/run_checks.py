@@ -107,6 +107,36 @@ def _config_problems(node, path: str = "") -> list[str]:
     return problems
 
 
+# hispo-pl's callbacks that act at a task's end before its evaluation: each changes what a task
+# acts with (records its network, folds in a penalty, prunes an anchor, sets an alpha)
+TASK_END_CALLBACKS = (
+    "TaskNetworks",
+    "WeightConsolidation",
+    "ZeroShotTransfer",
+    "AnchorExtension",
+    "DirichletEvaluation",
+    "SubspacePruning",
+    "CriticEvaluation",
+    "CriticPruning",
+)
+
+
+def callback_order_problem(class_paths: list[str]) -> str | None:
+    """Why a method's callbacks are in an order that would measure the wrong policy, or None:
+    callbacks run their hooks in list order, so a task-end callback listed after
+    ``RolloutEvaluation`` would change the policy after the success row was measured."""
+    names = [str(path).rsplit(".", 1)[-1] for path in class_paths]
+    if "RolloutEvaluation" not in names:
+        return None
+    late = [n for n in names[names.index("RolloutEvaluation") + 1 :] if n in TASK_END_CALLBACKS]
+    if not late:
+        return None
+    return (
+        f"trainer.callbacks: {', '.join(late)} after RolloutEvaluation would act after each "
+        "task's evaluation; callbacks run in list order, so list RolloutEvaluation last"
+    )
+
+
 def validate_config(config: dict) -> None:
     """Refuse, before any data is made or any step trained, values that would train nothing
     or train wrongly (batch 0, no steps, dropout 1, a negative tolerance...), and options that
@@ -128,6 +158,11 @@ def validate_config(config: dict) -> None:
             f"ckpt_path = {config['ckpt_path']}: a stream resumes by itself; rerun the same "
             "command without --ckpt_path (its run directory holds the finished tasks)"
         )
+    callbacks = trainer.get("callbacks") or []
+    paths = [c.get("class_path", "") for c in callbacks if isinstance(c, dict)]
+    order = callback_order_problem(paths)
+    if order is not None:
+        problems.append(order)
     if problems:
         raise ConfigError("invalid configuration:\n  " + "\n  ".join(problems))
 

@@ -241,6 +241,13 @@ class Task:
         return self.spec
 
 
+def reads_as_task_spec(text: str) -> bool:
+    """Whether ``text`` has the shape of a task spec (``<family>-<maze>[-<variant>][[<n>]]``),
+    valid or not: what tells a task spec from a Minari dataset id (whose name ends in
+    ``-v<version>`` or follows a namespace, neither of which a spec can hold)."""
+    return _SPEC_RE.match(text.strip()) is not None
+
+
 def parse_task(spec: str | Task) -> Task:
     """Parse ``pointmaze-umaze-PO[500]`` into a :class:`Task`; malformed specs show the grammar."""
     if isinstance(spec, Task):

@@ -96,6 +96,47 @@ class DirlessLogger(L.pytorch.loggers.Logger):
         pass
 
 
+# --- a Minari dataset of your own (test_datasets.py, test_cli_stream.py) ------------------------
+
+
+def own_minari_dataset(
+    dataset_id: str, episodes: int = 4, steps: int = 20, obs_dim: int = 4, keys=None
+):
+    """A small Minari dataset as a user makes one (not ours: no generation settings), of random
+    PointMaze-shaped steps unless ``obs_dim`` or ``keys`` say otherwise."""
+    import minari
+    import numpy as np
+    from gymnasium import spaces
+    from minari.data_collector import EpisodeBuffer
+
+    keys = keys or {"observation": obs_dim, "achieved_goal": 2, "desired_goal": 2}
+    rng = np.random.default_rng(0)
+    box = lambda n: spaces.Box(-np.inf, np.inf, (n,), np.float64)  # noqa: E731
+    buffers = [
+        EpisodeBuffer(
+            id=k,
+            observations={key: rng.normal(size=(steps + 1, n)) for key, n in keys.items()},
+            actions=rng.uniform(-1, 1, size=(steps, 2)),
+            rewards=[0.0] * steps,
+            terminations=[False] * steps,
+            truncations=[False] * (steps - 1) + [True],
+        )
+        for k in range(episodes)
+    ]
+    minari.create_dataset_from_buffers(
+        dataset_id=dataset_id,
+        buffer=buffers,
+        observation_space=spaces.Dict({key: box(n) for key, n in keys.items()}),
+        action_space=spaces.Box(-1.0, 1.0, (2,), np.float32),
+        algorithm_name="random",
+        author="you",
+        author_email="you@example.org",
+        code_permalink="https://example.org",
+        description="test data",
+    )
+    return dataset_id
+
+
 # --- a tiny HiSPO and its batches (test_hispo*.py) ---------------------------------------------
 
 # Float32 results that went through other kernels than those they are compared with (a fixture

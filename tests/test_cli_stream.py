@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
-from helpers import tiny_stream_args
+from helpers import own_minari_dataset, tiny_stream_args
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from hispo_pl.cli import main
@@ -182,3 +182,24 @@ def test_in_a_terminal_each_task_has_one_bar_over_its_steps(
     bars = captured.out + captured.err
     assert "task 2/2: 100%" in bars and "5/5" in bars
     assert "Epoch 0" not in bars  # not Lightning's per-epoch bar
+
+
+def test_a_stream_on_a_minari_dataset_names_it_and_its_episodes(tiny_umaze, tmp_path, capsys):
+    """The console and results.json say which dataset each task read and how many episodes
+    it holds, not the spec's [episodes], which counts nothing for a named dataset."""
+    own_minari_dataset("umaze-v1", episodes=5)
+    stream = ["pointmaze-umaze-N[500]", "pointmaze-umaze-PO[500]"]
+    args = tiny_stream_args("ftn", tmp_path, stream, "--data.dataset", "umaze-v1")
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "task 1/2: pointmaze-umaze-N from umaze-v1 (5 episodes), 5 steps" in out
+    assert "task 2/2: pointmaze-umaze-PO from umaze-v1 (5 episodes)" in out
+    results = json.loads((tmp_path / "pointmaze-1" / "seed0" / "results.json").read_text())
+    assert results["datasets"] == [{"dataset": "umaze-v1", "episodes": 5}] * 2
+    assert results["stream"] == stream  # the specs as given: a rerun resumes the same run
+
+
+def test_a_stream_on_our_data_records_it_too(tiny_run):
+    results, _ = tiny_run
+    local = {"dataset": "hispo/pointmaze-umaze-expert-v0", "episodes": 3}
+    assert results["datasets"] == [local, local]

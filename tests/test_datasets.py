@@ -7,6 +7,7 @@ import re
 import minari
 import numpy as np
 import pytest
+from helpers import own_minari_dataset
 
 from hispo_pl.data import generation
 from hispo_pl.data.datasets import (
@@ -395,3 +396,74 @@ def test_each_maze_reads_the_dataset_named_for_it(tiny_umaze):
     np.testing.assert_array_equal(
         dm.data.observations, tiny_umaze.for_task(parse_task("pointmaze-umaze-PO")).observations
     )
+
+
+# --- datasets of your own: names, keys, sizes, what a run records -------------------------
+
+
+def test_a_dataset_name_is_a_task_spec_or_a_minari_id():
+    from hispo_pl.data.datasets import DataSourceError, dataset_id_of, dataset_source
+    from hispo_pl.tasks import TaskSpecError, parse_task
+
+    assert dataset_source("pointmaze-umaze") == parse_task("pointmaze-umaze")
+    assert dataset_source("pointmaze-umaze-PO[100]") == parse_task("pointmaze-umaze-PO[100]")
+    for minari_id in ("umaze-v0", "mydata/umaze-v0", "D4RL/pointmaze/umaze-v2", "my_data-v12"):
+        assert dataset_source(minari_id) == minari_id
+    assert dataset_id_of("pointmaze-umaze-IA") == UMAZE_ID
+    with pytest.raises(DataSourceError, match="neither a task spec nor a Minari dataset id"):
+        dataset_source("umaze")
+    with pytest.raises(TaskSpecError, match="unknown maze"):  # a spec's shape: a spec's error
+        dataset_source("pointmaze-umze")
+
+
+def test_a_minari_id_without_a_namespace_trains_a_task(minari_home):
+    from hispo_pl.data.datamodule import TaskDataModule
+    from hispo_pl.data.datasets import DatasetUse
+
+    own_minari_dataset("umaze-v0", episodes=4)
+    assert load_episodes("umaze-v0").n_episodes == 4
+    dm = TaskDataModule(task="pointmaze-umaze-N[500]", dataset="umaze-v0", holdout=0.0)
+    assert dm.describe() == "pointmaze-umaze-N from umaze-v0"
+    dm.prepare_data()
+    assert dm.dataset_use == DatasetUse("umaze-v0", 4)
+    assert dm.describe() == "pointmaze-umaze-N from umaze-v0 (4 episodes)"
+    dm.setup("fit")
+    assert dm.data.n_episodes == 4
+
+
+def test_a_name_that_is_neither_is_refused_when_configured():
+    from hispo_pl.data.datamodule import TaskDataModule
+    from hispo_pl.data.datasets import DataSourceError
+
+    with pytest.raises(DataSourceError, match="umaze-v0, mydata/umaze-v0"):
+        TaskDataModule(task="pointmaze-umaze", dataset="umaze")
+
+
+def test_our_own_data_is_described_by_its_spec(tiny_umaze):
+    from hispo_pl.data.datamodule import TaskDataModule
+    from hispo_pl.data.datasets import DatasetUse
+
+    dm = TaskDataModule(task="pointmaze-umaze-PO[3]", holdout=0.0)
+    dm.prepare_data()
+    assert dm.describe() == "pointmaze-umaze-PO[3]"
+    assert dm.dataset_use == DatasetUse(UMAZE_ID, 3)
+
+
+def test_episodes_without_the_keys_training_reads_are_refused(minari_home):
+    from hispo_pl.data.datasets import DatasetValuesError
+
+    own_minari_dataset("nokeys/umaze-v0", keys={"observation": 4, "position": 2})
+    with pytest.raises(DatasetValuesError) as info:
+        load_episodes("nokeys/umaze-v0")
+    message = str(info.value)
+    assert "the keys observation, position" in message and "'achieved_goal'" in message
+
+
+def test_a_dataset_of_other_sizes_than_the_family_s_is_refused(minari_home):
+    from hispo_pl.data.datamodule import TaskDataModule
+    from hispo_pl.errors import ConfigError
+
+    own_minari_dataset("wide/umaze-v0", obs_dim=6)
+    dm = TaskDataModule(task="pointmaze-umaze", dataset="wide/umaze-v0", holdout=0.0)
+    with pytest.raises(ConfigError, match=r"observation 6 \(not 4\)"):
+        dm.setup("fit")

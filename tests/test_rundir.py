@@ -88,3 +88,14 @@ def test_progress_results_and_records_round_trip(tmp_path):
     assert run.read_progress()["stream"] == ["a"] and run.has_results()
     assert run.read_results() == {"stream": ["a"], "R": [[1.0]]}
     assert run.read_run_record() == {"method": "hispo"}
+
+
+def test_committed_results_from_before_the_dataset_record_still_read():
+    """results.json files written before runs recorded their datasets read and tabulate."""
+    from hispo_pl.benchmark.records import load_records
+
+    root = Path(__file__).resolve().parents[1] / "docs" / "results" / "pointmaze-1"
+    old = RunDir(root / "ftn" / "seed0").read_results()
+    assert "datasets" not in old and len(old["R"]) == 4
+    records, unreadable = load_records(root)
+    assert unreadable == [] and {r.method for r in records} >= {"ftn", "hispo"}

@@ -19,7 +19,14 @@ from ..tasks import (
     unseen_variant_tasks,
     unseen_variants_message,
 )
-from .datasets import EpisodeArrays, load_episodes, open_dataset
+from .datasets import (
+    DatasetUse,
+    EpisodeArrays,
+    dataset_id_of,
+    dataset_source,
+    load_episodes,
+    open_dataset,
+)
 from .sampler import HERConfig, HERSampler, Horizon, MixedSampler, Strategy
 
 
@@ -152,6 +159,9 @@ class TaskDataModule(L.LightningDataModule):
                 f"--data.datasets names {', '.join(unknown)}, not a maze of this run "
                 f"({', '.join(mazes)})"
             )
+        for name in [dataset, *(datasets or {}).values()]:
+            if name is not None:
+                dataset_source(name)  # a name that is neither a spec nor a Minari id: say so now
         self.dataset = dataset
         self.datasets = dict(datasets or {})
         self.batch_size = batch_size
@@ -170,6 +180,8 @@ class TaskDataModule(L.LightningDataModule):
         self.data: EpisodeArrays | None = None  # every episode of the task
         self.splits: dict[Split, EpisodeArrays] = {}  # "train" and "heldout" parts of data
         self.replayed: list[tuple[EpisodeArrays, HERConfig]] = []
+        # the dataset the task reads and its episodes, once prepare_data has opened it
+        self.dataset_use: DatasetUse | None = None
 
     def her_config(self, task: Task) -> HERConfig:
         """The relabelling of ``task``: the explicit options, else the paper's per-maze values."""
@@ -256,7 +268,20 @@ class TaskDataModule(L.LightningDataModule):
         return self.datasets.get(task.dataset_name) or self.dataset or task
 
     def prepare_data(self) -> None:
-        open_dataset(self.dataset_for(self.task))  # makes our local data on first use
+        ds, episodes = open_dataset(self.dataset_for(self.task))  # makes our local data if missing
+        count = ds.total_episodes if episodes is None else len(episodes)
+        self.dataset_use = DatasetUse(ds.spec.dataset_id, count)
+
+    def describe(self) -> str:
+        """The task as the console names it: its spec, or, when a Minari dataset is named for
+        it, the maze and variant and that dataset (with its episode count once opened), since
+        the spec's ``[episodes]`` then counts nothing."""
+        source = self.dataset_for(self.task)
+        if isinstance(dataset_source(source), Task):
+            return self.task.spec
+        task = self.task
+        used = self.dataset_use if self.dataset_use is not None else dataset_id_of(source)
+        return f"{task.family}-{task.maze}-{task.variant} from {used}"
 
     def setup(self, stage: str | None = None) -> None:
         if self.data is None:
@@ -268,6 +293,7 @@ class TaskDataModule(L.LightningDataModule):
                     "decisions on); give the task more episodes, or --data.holdout 0 to score "
                     "them on the training data"
                 )
+            self._check_sizes()
             train, heldout = self.data.split_episodes(self.holdout)
             self.splits = {"train": train, "heldout": heldout}
         if self.replay and not self.replayed:  # earlier tasks' training episodes only
@@ -280,6 +306,24 @@ class TaskDataModule(L.LightningDataModule):
                 )
                 for task in self.earlier_tasks()
             ]
+
+    def _check_sizes(self) -> None:
+        """Refuse data whose observation, position or action sizes are not the family's: the
+        model is built for the family's sizes and rollouts run in its environment."""
+        family, data = self.task.env_family, self.data
+        found = {
+            "observation": (data.observations.shape[-1], family.obs_dim),
+            "achieved_goal": (data.positions.shape[-1], family.goal_dim),
+            "action": (data.actions.shape[-1], family.action_dim),
+        }
+        wrong = [f"{k} {have} (not {want})" for k, (have, want) in found.items() if have != want]
+        if wrong:
+            raise ConfigError(
+                f"{dataset_id_of(self.dataset_for(self.task))} does not fit {self.task}: its "
+                f"episodes hold {', '.join(wrong)} values per step; a {family.name} dataset needs "
+                f"observation {family.obs_dim}, achieved_goal {family.goal_dim} and action "
+                f"{family.action_dim}, collected in {self.task.gym_id} or an env like it"
+            )
 
     def _sampler(self, data: EpisodeArrays, her: HERConfig, batch_size: int, seed: int):
         step = self.task.env_family.step_seconds

@@ -7,6 +7,7 @@ arrays at load time by the same pure transforms the env wrapper uses.
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from ..tasks import (
     Task,
     agent_position,
     parse_task,
+    reads_as_task_spec,
     transform_action,
     transform_observation,
 )
@@ -39,6 +41,58 @@ class DatasetNotFoundError(UserError, FileNotFoundError):
 def local_dataset_id(name: str) -> str:
     """Minari id of our local dataset for a maze: ``hispo/pointmaze-umaze-expert-v0``."""
     return f"{NAMESPACE}/{name}-expert-v{DATASET_VERSION}"
+
+
+# Minari's id grammar: ``[namespace/]name[-v<version>]`` (minari.dataset.minari_dataset)
+_MINARI_ID_RE = re.compile(r"^(?:[-\w][-\w/]*[-\w]+/)?[-\w]+?(?:-v\d+)?$")
+
+
+class DataSourceError(UserError, ValueError):
+    """A dataset name that is neither a task spec nor a Minari id."""
+
+
+def dataset_source(source: str | Task) -> Task | str:
+    """What a dataset name means, by one rule: a :class:`Task`, or a string shaped like a task
+    spec (``pointmaze-umaze``, ``pointmaze-umaze-PO[100]``), is our local dataset of that maze;
+    any other string is a Minari id, which must carry a namespace (``D4RL/pointmaze/umaze-v2``,
+    ``mydata/umaze``) or a version (``umaze-v0``). A task spec never ends in ``-v<digits>``
+    (its variant is upper case), so the two cannot be confused.
+
+    Raises:
+        DataSourceError: neither form (``umaze``, ``my data-v0``).
+    """
+    if isinstance(source, Task) or reads_as_task_spec(source):
+        return parse_task(source)
+    text = source.strip()
+    if _MINARI_ID_RE.match(text) and ("/" in text or re.search(r"-v\d+$", text)):
+        return text
+    raise DataSourceError(
+        f"{source!r} is neither a task spec nor a Minari dataset id: name a maze's local data "
+        "with a task spec (pointmaze-umaze) or a Minari dataset by its id, "
+        "[namespace/]name-v<version> (umaze-v0, mydata/umaze-v0, D4RL/pointmaze/umaze-v2)"
+    )
+
+
+def dataset_id_of(source: str | Task) -> str:
+    """The Minari id a dataset name reads (:func:`dataset_source`): ours for a task spec."""
+    source = dataset_source(source)
+    return local_dataset_id(source.dataset_name) if isinstance(source, Task) else source
+
+
+@dataclass(frozen=True)
+class DatasetUse:
+    """The dataset a task trains on and how many of its episodes it reads: what a run records
+    (``results.json``, ``result.json``, the console), since a task spec's ``[episodes]`` does
+    not count a Minari dataset named with ``--data.dataset``."""
+
+    dataset: str  # Minari id
+    episodes: int
+
+    def as_json(self) -> dict:
+        return {"dataset": self.dataset, "episodes": self.episodes}
+
+    def __str__(self) -> str:
+        return f"{self.dataset} ({self.episodes} episodes)"
 
 
 def dataset_path(dataset_id: str) -> Path:
@@ -168,6 +222,22 @@ def check_finite(dataset: str, episode: int, field: str, values: np.ndarray) -> 
         )
 
 
+OBSERVATION_KEYS = ("observation", "achieved_goal")  # desired_goal is read when present
+
+
+def check_observation_keys(dataset: str, episode: int, observations) -> None:
+    """Refuse an episode whose observations are not a dict with the keys training reads."""
+    keys = sorted(observations) if isinstance(observations, dict) else None
+    if keys is None or any(key not in observations for key in OBSERVATION_KEYS):
+        held = f"the keys {', '.join(keys)}" if keys is not None else "no dict observations"
+        raise DatasetValuesError(
+            f"the data of {dataset} is not usable: episode {episode} has {held}; hispo-pl reads "
+            "dict observations with 'observation' (the agent's features) and 'achieved_goal' "
+            "(its position), and 'desired_goal' when present (goal changes mark segments), as "
+            "the gymnasium-robotics mazes' observations are (docs/extending.md)"
+        )
+
+
 def episodes_to_arrays(episodes, dataset: str = "the dataset") -> EpisodeArrays:
     """Flatten Minari episodes (dict observations with ``observation`` and ``achieved_goal``;
     ``desired_goal``, when present, marks goal segments), refusing any that is not finite
@@ -175,6 +245,7 @@ def episodes_to_arrays(episodes, dataset: str = "the dataset") -> EpisodeArrays:
     obs, pos, act, end, idx, seg = [], [], [], [], [], []
     start = 0
     for k, ep in enumerate(episodes):
+        check_observation_keys(dataset, getattr(ep, "id", k), ep.observations)
         o = np.asarray(ep.observations["observation"], dtype=np.float32)
         n = len(o)  # T + 1
         a = np.zeros((n, np.asarray(ep.actions).shape[-1]), dtype=np.float32)
@@ -215,8 +286,9 @@ def open_dataset(source: str | Task, *, generate_if_missing: bool = True):
     what a data module's ``prepare_data`` needs."""
     import minari
 
-    if isinstance(source, Task) or "/" not in source:
-        task = parse_task(source)
+    source = dataset_source(source)
+    if isinstance(source, Task):
+        task = source
         dataset_id = local_dataset_id(task.dataset_name)
         if not dataset_exists(dataset_id):
             if not generate_if_missing:

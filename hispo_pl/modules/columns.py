@@ -63,6 +63,18 @@ class GrowingPolicy(Protocol):
 class NetworkPerTask(GoalConditionedBC):
     """One backbone network per task, or one for the whole stream (see the module docstring).
 
+    The template for a method that grows networks (docs/extending.md): with the
+    :class:`~hispo_pl.callbacks.TaskNetworks` callback, each task calls :meth:`start_task`
+    before its optimiser is built and :meth:`finish_task` at its end, before the evaluation.
+    A subclass changes how a task's network is made (:meth:`next_network`), what it trains on
+    (:meth:`losses`, reading :attr:`training_network`) or what a task's end keeps
+    (:meth:`finish_task`, calling ``super()``), and reads :attr:`nets`, :attr:`n_tasks`,
+    :attr:`started_task` and :attr:`task_index`.
+
+    Attributes:
+        nets: the networks kept, oldest first (``nn.ModuleList``); the last one trains.
+        task_network: for each finished task, the index into ``nets`` it acts with.
+
     Args:
         obs_dim, action_dim, goal_dim: sizes (linked from the data by the CLI).
         backbone: each task's network (:class:`~hispo_pl.config.BackboneConfig`), ``hbc``
@@ -102,14 +114,23 @@ class NetworkPerTask(GoalConditionedBC):
 
     # --- the GrowingPolicy protocol -------------------------------------------------------
 
+    def next_network(self, task: int) -> HierarchicalPolicy:
+        """The network task ``task`` (1 or later) trains, made once when the task starts:
+        a copy of the previous task's (``init="previous"``) or a fresh one. The growth hook: a
+        subclass returns its own (on any device: it is moved to the module's), and
+        :meth:`start_task` freezes the earlier networks and stores it."""
+        if self.network_init == "previous":
+            return copy.deepcopy(self.nets[-1])
+        return self.new_network()
+
     def start_task(self, task: int) -> None:
         """Make the network task ``task`` trains (before the optimiser is built); idempotent,
-        so a resumed run does not grow twice."""
+        so a resumed run does not grow twice: :meth:`next_network` is asked only for a task
+        that has no network yet."""
         if task == 0 or self._started == task or self.n_tasks > task:
             self._started = task
             return
-        previous = self.nets[-1]
-        new = copy.deepcopy(previous) if self.network_init == "previous" else self.new_network()
+        new = self.next_network(task)
         new.to(self.device)
         self.freeze_all()  # earlier networks (all of them, also after a resume) stay as learned
         if self.network_keep == "all":
@@ -125,12 +146,23 @@ class NetworkPerTask(GoalConditionedBC):
 
     @property
     def n_tasks(self) -> int:
+        """Tasks finished (each has an entry in :attr:`task_network`)."""
         return len(self.task_network)
+
+    @property
+    def started_task(self) -> int | None:
+        """The task :meth:`start_task` last started (None before the first)."""
+        return self._started
+
+    @property
+    def training_network(self) -> HierarchicalPolicy:
+        """The network the current task trains: the newest one."""
+        return self.nets[-1]
 
     # --- training and acting --------------------------------------------------------------
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        return self.nets[-1].losses(batch)
+        return self.training_network.losses(batch)
 
     def network_for(self, task: int | None) -> HierarchicalPolicy:
         """A finished task's network; the newest one for the current or an unseen task."""

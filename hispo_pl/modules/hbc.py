@@ -23,9 +23,16 @@ class GoalConditionedBC(L.LightningModule):
     """Shared training plumbing: the backbone and optimiser configs, Adam with an optional
     cosine schedule, loss dict logging, checkpoints that rebuild the module alone.
 
-    Subclasses define ``losses(batch) -> dict[str, Tensor]`` (with a ``loss`` entry) and
-    ``act(observation, position, goal) -> action`` (deterministic), and call
-    ``save_hyperparameters()`` in their ``__init__``.
+    The base every method subclasses (``hispo-pl fit`` refuses any other LightningModule:
+    the loop, the callbacks, MEM and ``hispo-pl evaluate`` use what it adds). Subclasses
+    define :meth:`losses` (a dict with a ``loss`` entry) and :meth:`acting_policy` (which
+    network acts on a task), call ``save_hyperparameters()`` at the end of their ``__init__``
+    (a checkpoint rebuilds the module from them), and, when they grow, :meth:`restore_structure`.
+    The loop sets :attr:`task_index` (0-based) and :attr:`log_prefix` before each task; the
+    callbacks fill :attr:`task_record`. A method that grows per task implements
+    :class:`~hispo_pl.modules.columns.GrowingPolicy` for the
+    :class:`~hispo_pl.callbacks.TaskNetworks` callback, or subclasses
+    :class:`~hispo_pl.modules.columns.NetworkPerTask`, which does (docs/extending.md).
     """
 
     def __init__(
@@ -62,6 +69,9 @@ class GoalConditionedBC(L.LightningModule):
         self.task_record = TaskRecord()
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        """The training losses of a batch (``observation``, ``position``, ``goal``, ``action``,
+        ``subgoal``... tensors): a dict of scalars whose ``loss`` entry is minimised; every
+        entry is logged as ``<log_prefix>train/<name>``."""
         raise NotImplementedError
 
     def make_policy(self, head: type[GaussianPolicy] = GaussianPolicy) -> HierarchicalPolicy:
