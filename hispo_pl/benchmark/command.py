@@ -8,6 +8,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from ..config_files import config_root
 from ..errors import Interrupted, RunDirError
 from ..io import atomic_write_text
 from . import plan
@@ -60,11 +61,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("--num-threads and --workers must be >= 1")
     if args.address is not None and args.launcher != "ray":
         parser.error("--address is for --launcher ray")
-    config_dir = Path(args.config_dir)
+    config_dir = Path(args.config_dir) if args.config_dir else config_root()
     if not (config_dir / "methods").is_dir():
-        parser.error(
-            f"no {config_dir / 'methods'}: run from the repository root or pass --config-dir"
-        )
+        parser.error(f"--config-dir {config_dir}: no methods/ folder in it")
     try:
         stream_config = plan.stream_config_path(args.stream, config_dir)
         methods = plan.select_methods(args.methods, plan.known_methods(config_dir))

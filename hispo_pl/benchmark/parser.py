@@ -85,8 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--config-dir",
-        default="configs",
-        help="where streams/ and methods/ live (default: configs)",
+        default=None,
+        help="where streams/ and methods/ live (default: ./configs in a checkout, else the "
+        "packaged configs)",
     )
     parser.add_argument(
         "--dry-run", action="store_true", help="print the planned fit commands; run nothing"
