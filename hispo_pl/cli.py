@@ -399,6 +399,7 @@ def usage() -> str:
         *(f"  {verb:<{width}}  {text}" for verb, text in VERBS.items()),
         "",
         "start with:",
+        "  hispo-pl config copy configs   (outside a checkout: the shipped configs, here)",
         "  hispo-pl fit --config configs/demo.yaml --config configs/methods/hispo.yaml",
         "  hispo-pl config list",
     ]
