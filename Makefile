@@ -14,13 +14,19 @@ BIN := $(VENV)/bin
 .PHONY: demo test test-all lint bench clean
 
 $(BIN)/hispo-pl: pyproject.toml
+	@echo "[make] $(VENV): creating it if missing, then installing into it (quietly; the first time takes minutes)"
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	@echo "[make] upgrading pip"
 	$(BIN)/python -m pip install -q --upgrade pip
+	@echo "[make] installing $(TORCH_PIN)"
 	$(BIN)/python -m pip install -q "$(TORCH_PIN)"
+	@echo "[make] installing hispo-pl (editable) with its dev tools"
 	$(BIN)/python -m pip install -q -e ".[dev]"
 	touch $(BIN)/hispo-pl
+	@echo "[make] $(VENV) is ready: . $(VENV)/bin/activate puts hispo-pl on the path"
 
 demo: $(BIN)/hispo-pl
+	@echo "[make] the demo: HiSPO on a two-task PointMaze stream (expert data are made on first use)"
 	$(BIN)/hispo-pl fit --config configs/demo.yaml --config configs/methods/hispo.yaml
 
 test: $(BIN)/hispo-pl

@@ -8,6 +8,8 @@ from typing_extensions import override
 
 from ..evaluation import RolloutEvaluator, RolloutResult, module_policy
 from ..nn import eval_mode
+from ..progress import Progress
+from ..rundir import task_label
 from ..tasks import Task, parse_task
 
 
@@ -29,7 +31,8 @@ class RolloutEvaluation(L.Callback):
         eval_every: steps between evaluations on the current task (0: only at the end).
         episodes: seeded evaluation episodes (random distinct start and goal cells).
         seed: evaluation seed (fixes start/goal cells and reset noise).
-        progress: show a progress bar per evaluation.
+        progress: also show the progress of each periodic evaluation; the one at a task's
+            end always shows (:mod:`hispo_pl.progress`: a bar, or a line every tenth).
     """
 
     def __init__(
@@ -49,16 +52,20 @@ class RolloutEvaluation(L.Callback):
         pl_module: L.LightningModule,
         task_index: int | None,
         record: bool = False,
+        progress: bool | Progress = False,
     ) -> RolloutResult:
         task = parse_task(task)
         with pl_module.task_record.timed("evaluation"), eval_mode(pl_module):
             if task not in self._evaluators:
                 self._evaluators[task] = RolloutEvaluator(task, self.episodes, self.seed)
             policy = module_policy(pl_module, task=task_index)
-            return self._evaluators[task].run(policy, progress=self.progress, record=record)
+            return self._evaluators[task].run(policy, progress=progress, record=record)
 
-    def _evaluate_current(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        result = self._run(trainer.datamodule.task, pl_module, pl_module.task_index)
+    def _evaluate_current(
+        self, trainer: L.Trainer, pl_module: L.LightningModule, at_end: bool = False
+    ) -> None:
+        task, i = trainer.datamodule.task, pl_module.task_index
+        result = self._run(task, pl_module, i, progress=at_end or self.progress)
         self._record(
             pl_module,
             {
@@ -80,11 +87,13 @@ class RolloutEvaluation(L.Callback):
             )
 
     def _evaluate_stream(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        i = pl_module.task_index
-        results = [
-            self._run(task, pl_module, j, record=j == i)
-            for j, task in enumerate(trainer.datamodule.tasks)
-        ]
+        i, tasks = pl_module.task_index, trainer.datamodule.tasks
+        label = f"task {task_label(i)}/{len(tasks)}: evaluating {len(tasks)} tasks"
+        with Progress(label, len(tasks) * self.episodes, "episodes") as done:
+            results = [
+                self._run(task, pl_module, j, record=j == i, progress=done)
+                for j, task in enumerate(tasks)
+            ]
         row = [r.success for r in results]
         pl_module.task_record.success_row = row
         pl_module.task_record.rollouts = results[i]  # the current task's, with their paths
@@ -105,4 +114,4 @@ class RolloutEvaluation(L.Callback):
         if trainer.datamodule.tasks:
             self._evaluate_stream(trainer, pl_module)
         else:
-            self._evaluate_current(trainer, pl_module)
+            self._evaluate_current(trainer, pl_module, at_end=True)

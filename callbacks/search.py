@@ -16,6 +16,7 @@ from typing_extensions import override
 from ..decisions import extended_subspace_candidates, previous_subspace_candidates
 from ..errors import TrainingDivergedError
 from ..nn import eval_mode
+from ..progress import Progress
 from ..rundir import RunDir, task_label
 from ..search import RaceOutcome, race_subspace, resolve_precision
 from .protocols import require_subspace_policy
@@ -173,7 +174,7 @@ class DirichletEvaluation(L.Callback):
 
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        results = self._run_search(trainer, pl_module, train_losses=True)
+        results = self._run_search(trainer, pl_module, train_losses=True, progress=True)
         refuse_non_finite(results, pl_module.task_index)
         for name, res in results.items():
             if name in self._l_window and res.l_curr > 0:
@@ -190,9 +191,11 @@ class DirichletEvaluation(L.Callback):
         save: bool = True,
         prev: bool = True,
         train_losses: bool = False,
+        progress: bool = False,
     ) -> dict[str, SearchResult]:
         """``L_curr`` (and with ``prev``, ``L_prev``) of every trained subspace on held-out
-        batches; with ``train_losses`` the chosen points are scored on training batches too."""
+        batches; with ``train_losses`` the chosen points are scored on training batches too;
+        with ``progress`` the scored batches are counted (:mod:`hispo_pl.progress`)."""
         device = module.device
         batches = trainer.datamodule.fixed_batches(self.n_batches, self.seed, device=device)
         train_batches = (
@@ -206,14 +209,25 @@ class DirichletEvaluation(L.Callback):
         precision = resolve_precision(self.precision, device)
         generator = torch.Generator().manual_seed(self.seed)
         results = {}
-        with module.task_record.timed("search"), eval_mode(module):
-            for name in module.subspace_names:
-                if module.transferred(name):  # zero-shot: nothing was trained to compare
-                    continue
+        names = [n for n in module.subspace_names if not module.transferred(n)]
+        scored = len(batches), len(train_batches or [])
+        total = sum(self._batches_scored(module.n_anchors(n), prev, *scored) for n in names)
+        label = f"task {task_label(module.task_index)}: searching {', '.join(names)}"
+        counter = Progress(label, total, "batches", enabled=progress)
+        with module.task_record.timed("search"), eval_mode(module), counter:
+            for name in names:  # a transferred one (zero-shot) has nothing trained to compare
 
                 def race(cands, probe=probe, name=name, batches=batches):
                     return race_subspace(
-                        module, name, cands, batches, probe, self.survivors, self.loss, precision
+                        module,
+                        name,
+                        cands,
+                        batches,
+                        probe,
+                        self.survivors,
+                        self.loss,
+                        precision,
+                        counter.update,
                     )
 
                 alpha_curr = module.current_alpha(name).to(device)
@@ -247,6 +261,21 @@ class DirichletEvaluation(L.Callback):
                         result.l_prev_train = float(on_train.losses[1])
                 results[name] = result
         return results
+
+    def _batches_scored(self, anchors: int, prev: bool, held_out: int, train: int) -> int:
+        """How many batches (and probes) one subspace's search scores, what its progress
+        counts: ``L_curr`` on the ``held_out`` batches, each race of candidates on a probe and
+        on them, the chosen points on the ``train`` batches."""
+
+        def race(candidates: int) -> int:  # a probe when it leaves some out, then the batches
+            return int(self.survivors is not None and self.survivors < candidates) + held_out
+
+        total = held_out + train
+        if anchors > 1 and prev:  # one previous anchor: a single point
+            total += race(1 if anchors == 2 else self.n_candidates)
+        if anchors > 1 and self.refine_current:
+            total += race(self.n_candidates + 2)
+        return total
 
     def _save(self, trainer, module, name, cands, race: RaceOutcome, result: SearchResult) -> None:
         probe = {}

@@ -29,6 +29,7 @@ from pathlib import Path
 import torch
 from lightning.pytorch.cli import LightningCLI
 
+from .cli_errors import dotted_flags, parse_error_line, unknown_flag, without_flag
 from .cli_stream import run_stream_from_cli
 from .commands import data_main, evaluate_main, flip_note, render_main, set_num_threads
 from .console import print_stream_results
@@ -81,6 +82,42 @@ class HispoCLI(LightningCLI):
             target = f"model.init_args.backbone.{name}"
             parser.link_arguments(f"data.{name}", target, apply_on="instantiate")
 
+    def init_parser(self, **kwargs):
+        """Parsers that raise their errors, for :meth:`parse_arguments` to say in one line."""
+        return super().init_parser(**{**kwargs, "exit_on_error": False})
+
+    def parse_arguments(self, parser, args) -> None:
+        """LightningCLI's parsing; an error is one line (an unknown flag with the closest
+        known one) rather than the usage of every flag.
+
+        Raises:
+            ConfigError: what did not parse."""
+        from argparse import ArgumentError
+
+        try:
+            super().parse_arguments(parser, args)
+        except ArgumentError as err:
+            message = str(err)
+            known = self._known_flags(parser, args, message)
+            raise ConfigError(parse_error_line(message, known)) from None
+
+    def _known_flags(self, parser, args, message: str) -> list[str]:
+        """The flags ``hispo-pl fit`` takes, for the closest match to an unknown one: the
+        parser's own, and every key of the configuration parsed without the unknown flag
+        (the method's and the callbacks' arguments included)."""
+        from argparse import ArgumentError
+
+        fit = getattr(self, "_subcommand_parsers", {}).get("fit", parser)
+        known = [s for a in fit._actions for s in a.option_strings if s.startswith("--")]
+        flag = unknown_flag(message)
+        if flag is None or args is None:
+            return known
+        try:
+            config = parser.parse_args(without_flag(list(args), flag))
+        except ArgumentError:
+            return known
+        return known + dotted_flags(config.get("fit", config).as_dict())
+
     def _parse_ckpt_path(self) -> None:
         """Take the model's hyperparameters from ``--ckpt_path`` as LightningCLI does, but
         safely: a stream refuses the flag, an unreadable file is a user error rather than a
@@ -118,12 +155,13 @@ class HispoCLI(LightningCLI):
         """One task: ``trainer.fit``. A stream: the ContinualLoop, a fresh Trainer per task."""
         refuse_unseen_variants(model, datamodule)
         if datamodule.stream is None:
-            from .console import step_lines
+            from .console import task_progress
             from .loop import fit_interruptibly
 
-            lines = step_lines(datamodule.describe(), self.trainer.max_steps)
-            if lines is not None:
-                self.trainer.callbacks.append(lines)
+            bar = self.trainer.progress_bar_callback is not None
+            callbacks = self.trainer.callbacks
+            label = datamodule.describe()
+            self.trainer.callbacks = task_progress(callbacks, label, self.trainer.max_steps, bar)
             start = time.perf_counter()
             fit_interruptibly(self.trainer, model, datamodule, **kwargs)
             self.fit_seconds = time.perf_counter() - start
@@ -185,11 +223,18 @@ def check_fit_args(argv: list[str]) -> str | None:
     import contextlib
     import io
 
+    from .console import lightning_notices_once, quiet_lightning_notices
+
     args = argv[1:] if argv and argv[0] == "fit" else list(argv)
     errors = io.StringIO()
     threads = torch.get_num_threads()
     try:
-        with contextlib.redirect_stderr(errors), contextlib.redirect_stdout(io.StringIO()):
+        with (
+            contextlib.redirect_stderr(errors),
+            contextlib.redirect_stdout(io.StringIO()),
+            lightning_notices_once(),  # its seed and accelerator lines are not a run's
+        ):
+            quiet_lightning_notices()
             run_lightning_cli(args, run=False)
     except SystemExit as exit:
         if exit.code:
@@ -217,7 +262,12 @@ def run_lightning_cli(args: list[str] | None = None, run: bool = True) -> HispoC
 
 
 def _quiet_known_warnings() -> None:
-    """Silence third-party notices that say nothing about the user's run."""
+    """Silence, once for the command, third-party notices that say nothing about the user's
+    run: warnings about data loading that hispo-pl's sampler makes irrelevant, and Lightning's
+    advertising tips (litlogger, litmodels), which it logs rather than warns. (The Adroit
+    hands' notice of gymnasium-robotics is dropped where it is imported, hispo_pl.envs.)"""
+    import logging
+
     for pattern in (
         r".*IterableDataset.*has `__len__` defined.*",
         r".*does not have many workers.*",
@@ -226,6 +276,17 @@ def _quiet_known_warnings() -> None:
         r".*LightningCLI's args parameter.*",
     ):
         warnings.filterwarnings("ignore", message=pattern)
+    for name in ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.rank_zero"):
+        logger = logging.getLogger(name)
+        if not any(isinstance(f, _NoTips) for f in logger.filters):
+            logger.addFilter(_NoTips())
+
+
+class _NoTips:
+    """A logging filter that drops Lightning's ``💡 Tip:`` lines."""
+
+    def filter(self, record) -> bool:
+        return not str(record.msg).lstrip().startswith("💡 Tip")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -341,6 +402,7 @@ def usage() -> str:
         *(f"  {verb:<{width}}  {text}" for verb, text in VERBS.items()),
         "",
         "start with:",
+        "  hispo-pl config copy configs   (outside a checkout: the shipped configs, here)",
         "  hispo-pl fit --config configs/demo.yaml --config configs/methods/hispo.yaml",
         "  hispo-pl config list",
     ]

@@ -74,19 +74,16 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
     def make_trainer(k: int):
         """Task ``k``'s Trainer: the model summary once per stream, and progress as lines when
         the output is not a terminal."""
-        from .console import TaskProgressBar, step_lines
+        from .console import task_progress
 
         extra: dict = {} if first_trainer[0] else {"enable_model_summary": False}
         first_trainer[0] = False
-        task_callbacks = list(callbacks)
         max_steps = config["trainer"].get("max_steps") or 0
         label = f"task {task_label(k)}/{len(datamodule.stream)}"
-        lines = step_lines(label, max_steps)
-        if lines is not None:
-            task_callbacks.append(lines)
-            extra["enable_progress_bar"] = False
-        elif max_steps > 0 and config["trainer"].get("enable_progress_bar") is not False:
-            task_callbacks.append(TaskProgressBar(label))
+        bar = config["trainer"].get("enable_progress_bar") is not False
+        task_callbacks = task_progress(callbacks, label, max_steps, bar)
+        if not any(isinstance(cb, ProgressBar) for cb in task_callbacks):
+            extra["enable_progress_bar"] = False  # lines, or no bar: not Lightning's either
         return cli.instantiate_trainer(
             callbacks=task_callbacks,
             enable_checkpointing=False,

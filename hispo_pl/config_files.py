@@ -35,11 +35,12 @@ def expanded_size(path: Path) -> int:
 
 
 def check_config_files(argv: list[str]) -> None:
-    """Refuse a ``--config`` file whose aliases expand past :data:`MAX_CONFIG_NODES` before
-    the parser expands it (a few lines can make billions of nodes and exhaust the memory).
+    """Refuse a ``--config`` file that does not exist (saying how to get the shipped ones), or
+    whose aliases expand past :data:`MAX_CONFIG_NODES` before the parser expands it (a few
+    lines can make billions of nodes and exhaust the memory).
 
     Raises:
-        UserError: naming the file and its expanded size."""
+        UserError: naming the file, and what to do or its expanded size."""
     import yaml
 
     for i, arg in enumerate(argv):
@@ -50,6 +51,8 @@ def check_config_files(argv: list[str]) -> None:
         else:
             continue
         path = Path(value)
+        if not path.exists():
+            raise UserError(missing_config_message(value))
         if not path.is_file():
             continue  # the parser says what is wrong with it
         try:
@@ -62,6 +65,18 @@ def check_config_files(argv: list[str]) -> None:
                 f"few hundred; the limit is {MAX_CONFIG_NODES:,}); write the values out "
                 "instead of nesting aliases"
             )
+
+
+def missing_config_message(value: str) -> str:
+    """One line for a ``--config`` file that does not exist: where the shipped configs are
+    (outside a checkout ``configs/`` is not there until ``hispo-pl config copy`` makes it)."""
+    stem = Path(value).with_suffix("").as_posix().removeprefix("configs/")
+    shipped = stem in config_names()
+    what = "a shipped config, but this folder has no copy of it" if shipped else "no such file"
+    return (
+        f"--config {value}: {what}; `hispo-pl config copy configs` copies the shipped configs "
+        "here (`hispo-pl config list` names them)"
+    )
 
 
 def config_root() -> Path:

@@ -13,12 +13,14 @@ from pathlib import Path
 import lightning as L
 from lightning.pytorch.callbacks import TQDMProgressBar
 
+from .progress import duration, interactive
 from .rundir import RunDir, task_label
 
 # Lightning's start-of-fit notices (accelerator lines, tips) go through these loggers
 LIGHTNING_NOTICES = (
     "lightning.pytorch.utilities.rank_zero",
     "lightning.fabric.utilities.rank_zero",
+    "lightning.fabric.utilities.seed",
 )
 
 
@@ -42,16 +44,6 @@ def quiet_lightning_notices() -> None:
     """After the first task: Lightning's notices have been shown once; keep its warnings."""
     for name in LIGHTNING_NOTICES:
         logging.getLogger(name).setLevel(logging.WARNING)
-
-
-def duration(seconds: float) -> str:
-    """``4m07s``, ``52s``, ``1h02m``."""
-    s = round(seconds)
-    if s < 60:
-        return f"{s}s"
-    if s < 3600:
-        return f"{s // 60}m{s % 60:02d}s"
-    return f"{s // 3600}h{s % 3600 // 60:02d}m"
 
 
 def decision_parts(decisions: list[dict]) -> list[str]:
@@ -97,7 +89,8 @@ def task_summary(
 
 class StepLines(L.Callback):
     """Training progress as a line every ``every`` steps (for logs and pipes, where a progress
-    bar would be one long line of carriage returns): step, share done, loss, steps/s."""
+    bar would be one long line of carriage returns): step, share done, loss, steps/s. On
+    stderr, with every other progress (:mod:`hispo_pl.progress`)."""
 
     def __init__(self, label: str, every: int):
         self.label, self.every = label, max(1, every)
@@ -115,9 +108,11 @@ class StepLines(L.Callback):
         loss = outputs["loss"] if isinstance(outputs, dict) else outputs
         loss_text = f", loss {float(loss):.4f}" if loss is not None else ""
         share = 100 * step / trainer.max_steps if trainer.max_steps > 0 else 0.0
-        say(
-            f"{self.label} step {step}/{trainer.max_steps} ({share:.0f} %){loss_text}, "
-            f"{rate:.1f} steps/s"
+        print(
+            f"[hispo-pl] {self.label} step {step}/{trainer.max_steps} ({share:.0f} %){loss_text}, "
+            f"{rate:.1f} steps/s",
+            file=sys.stderr,
+            flush=True,
         )
 
 
@@ -154,6 +149,28 @@ class TaskProgressBar(TQDMProgressBar):
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self.train_progress_bar.set_postfix(self.get_metrics(trainer, pl_module))
 
+    def get_metrics(self, trainer: L.Trainer, pl_module: L.LightningModule) -> dict:
+        """The losses, without the logger's version (``v_num``), which is not progress."""
+        metrics = super().get_metrics(trainer, pl_module)
+        metrics.pop("v_num", None)
+        return metrics
+
+
+def task_progress(callbacks: list, label: str, max_steps: int | None, bar: bool) -> list:
+    """``callbacks`` with a task's training progress as the policy wants it: lines in a log or
+    a pipe (:func:`step_lines`), else one bar over the task's steps (:class:`TaskProgressBar`)
+    in place of Lightning's per-epoch one; ``bar=False`` (the user turned the bar off): no
+    bar. A progress bar of the user's own class stays."""
+    from lightning.pytorch.callbacks import RichProgressBar
+
+    kept = [cb for cb in callbacks if type(cb) not in (TQDMProgressBar, RichProgressBar)]
+    lines = step_lines(label, max_steps)
+    if lines is not None:
+        return [*kept, lines]
+    if bar and max_steps and max_steps > 0:
+        return [*kept, TaskProgressBar(label)]
+    return kept
+
 
 def decision_lines(decisions: list[dict]) -> list[str]:
     """One line per task after the first: each subspace's keep / prune decision and the ratio
@@ -188,8 +205,3 @@ def print_stream_results(results: dict) -> None:
     print(f"[hispo-pl] results: {run_dir.results_file}")
     if any(Path(results["run_dir"]).glob("events.out.tfevents.*")):
         print(f"[hispo-pl] curves and decisions: tensorboard --logdir {results['run_dir']}")
-
-
-def interactive() -> bool:
-    """Whether a progress bar can redraw itself in place (stdout is a terminal)."""
-    return sys.stdout.isatty()

@@ -7,12 +7,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
 from .data.sampler import position_velocity
 from .envs import agent_flipped, make_env
 from .envs.family import family_behaviour
 from .nn import eval_mode
+from .progress import Progress
 from .tasks import Task, agent_position, parse_task
 
 PolicyFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
@@ -71,9 +71,13 @@ class RolloutEvaluator:
         self.step_seconds = self.task.env_family.step_seconds
         self.options = reset_options(self.task, self.envs[0], episodes, seed)
 
-    def run(self, policy: PolicyFn, progress: bool = False, record: bool = False) -> RolloutResult:
+    def run(
+        self, policy: PolicyFn, progress: bool | Progress = False, record: bool = False
+    ) -> RolloutResult:
         """Success, lengths and flips of every episode; ``record`` also keeps each episode's
-        positions (for pictures). One policy call per step for all running episodes."""
+        positions (for pictures). One policy call per step for all running episodes.
+        ``progress``: show it (:class:`~hispo_pl.progress.Progress`), or count the episodes
+        into a given one (several evaluations under one count)."""
         successes = np.zeros(self.episodes, dtype=bool)
         flips = np.zeros(self.episodes, dtype=bool)
         lengths = np.zeros(self.episodes, dtype=np.int64)
@@ -87,7 +91,10 @@ class RolloutEvaluator:
         waiting = iter(range(self.episodes))
         running: list[int | None] = [None] * len(self.envs)  # episode of each env
         obs: list[dict] = [{}] * len(self.envs)
-        bar = tqdm(total=self.episodes, desc=f"eval {self.task}", disable=not progress)
+        own = not isinstance(progress, Progress)
+        bar = (
+            Progress(f"eval {self.task}", self.episodes, "episodes", progress) if own else progress
+        )
 
         def start_next(slot: int) -> None:
             k = running[slot] = next(waiting, None)
@@ -124,7 +131,8 @@ class RolloutEvaluator:
                 if ended or lengths[k] >= self.max_steps:
                     bar.update(1)
                     start_next(s)
-        bar.close()
+        if own:
+            bar.close()
         return RolloutResult(
             float(successes.mean()),
             float(lengths.mean()),

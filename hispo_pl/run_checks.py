@@ -137,14 +137,62 @@ def callback_order_problem(class_paths: list[str]) -> str | None:
     )
 
 
+def lightning_optimizer_problem(config: dict) -> str | None:
+    """Lightning's ``--optimizer`` / ``--lr_scheduler`` would replace the method's Adam and
+    schedule (``optim:``), and a divergence would then be blamed on ``optim.lr``."""
+    given = [k for k in ("optimizer", "lr_scheduler") if config.get(k) is not None]
+    if not given:
+        return None
+    return (
+        f"{' and '.join(f'--{k}' for k in given)}: hispo-pl methods build their optimiser "
+        "from optim: (Adam); set --model.init_args.optim.lr and "
+        "--model.init_args.optim.schedule instead"
+    )
+
+
+def stream_checkpoint_problem(config: dict) -> str | None:
+    """A checkpoint callback in a stream: every task's Trainer runs without one, since the
+    stream saves its own checkpoints (atomically, where a rerun resumes from them)."""
+    if not (config.get("data") or {}).get("stream"):
+        return None
+    callbacks = (config.get("trainer") or {}).get("callbacks") or []
+    if isinstance(callbacks, dict):
+        callbacks = [callbacks]
+    from lightning.pytorch.callbacks import Checkpoint
+
+    for callback in callbacks:
+        path = str(callback.get("class_path", "")) if isinstance(callback, dict) else ""
+        cls = _imported_class(path)
+        if isinstance(cls, type) and issubclass(cls, Checkpoint):
+            return (
+                f"trainer.callbacks: {path.rsplit('.', 1)[-1]} has no effect in a stream, which "
+                "saves task_XX.ckpt after each task and task_XX.partial.ckpt every "
+                "--checkpoint_every steps in its run directory; remove it"
+            )
+    return None
+
+
+def _imported_class(class_path: str):
+    """The class a config names, already imported by the parser (None if it is not)."""
+    import sys
+
+    module, _, name = class_path.rpartition(".")
+    return getattr(sys.modules.get(module), name, None) if module else None
+
+
 def validate_config(config: dict) -> None:
     """Refuse, before any data is made or any step trained, values that would train nothing
     or train wrongly (batch 0, no steps, dropout 1, a negative tolerance...), and options that
     a stream would silently ignore.
 
     Raises:
-        ConfigError: one message listing every problem.
+        ConfigError: one message listing every problem; one line for an option that
+        hispo-pl would bypass or ignore (Lightning's optimiser flags, a stream's checkpoint
+        callback).
     """
+    for problem in (lightning_optimizer_problem(config), stream_checkpoint_problem(config)):
+        if problem is not None:
+            raise ConfigError(problem)
     problems = _config_problems({k: v for k, v in config.items() if k != "config"})
     trainer = config.get("trainer") or {}
     max_steps, max_epochs = trainer.get("max_steps"), trainer.get("max_epochs")

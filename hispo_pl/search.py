@@ -43,13 +43,15 @@ def race_candidates(
     batches: Sequence[Batch],
     probe: Batch | None = None,
     survivors: int | None = 64,
+    tick: Callable[[], None] | None = None,
 ) -> RaceOutcome:
     """Rank ``candidates`` [S, K] by ``score(candidates, probe)`` (losses [S]), then score the
     ``survivors`` lowest on every batch and average.
 
     ``survivors=None`` (or ≥ S), or no probe, scores every candidate on every batch: the
-    exhaustive search.
+    exhaustive search. ``tick`` is called after the probe and after each batch (progress).
     """
+    tick = tick or (lambda: None)
     if not batches:
         raise ValueError("need at least one batch to score the candidates on")
     if survivors is not None and survivors < 1:
@@ -60,8 +62,12 @@ def race_candidates(
     else:
         probe_losses = score(candidates, probe)
         order = probe_losses.argsort()[:survivors]
+        tick()
     kept = candidates[order]
-    total = sum(score(kept, b) for b in batches)
+    total = 0
+    for b in batches:
+        total = total + score(kept, b)
+        tick()
     return RaceOutcome(order, total / len(batches), probe_losses)
 
 
@@ -89,6 +95,7 @@ def race_subspace(
     survivors: int | None = None,
     loss: Literal["mse", "nll"] = "mse",
     precision: Literal["32", "bf16"] = "32",
+    tick: Callable[[], None] | None = None,
 ) -> RaceOutcome:
     """:func:`race_candidates` over weight vectors of one subspace of ``module`` (a
     :class:`~hispo_pl.modules.SubspacePolicy`), scored by its ``score_alphas``."""
@@ -96,4 +103,4 @@ def race_subspace(
     def score(alphas: Tensor, batch: dict[str, Tensor]) -> Tensor:
         return module.score_alphas(subspace, alphas, batch, loss=loss, precision=precision)
 
-    return race_candidates(score, candidates, batches, probe, survivors)
+    return race_candidates(score, candidates, batches, probe, survivors, tick)

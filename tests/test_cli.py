@@ -51,12 +51,12 @@ def _fit_args(tmp_path: Path, *extra: str) -> list[str]:
 
 def test_fit_trains_evaluates_logs_and_prints_success(tiny_umaze, tmp_path, capsys):
     main(_fit_args(tmp_path))
-    out = capsys.readouterr().out
+    out, err = capsys.readouterr()
     assert "[hispo-pl] HBC on pointmaze-umaze-N[6]: success" in out
     assert "over 4 episodes" in out and "after 40 steps (" in out and "s with evaluations)" in out
-    # not a terminal: progress as a line every tenth of the steps
-    assert "[hispo-pl] pointmaze-umaze-N[6] step 4/40 (10 %), loss " in out
-    assert "[hispo-pl] pointmaze-umaze-N[6] step 40/40 (100 %), loss " in out
+    # not a terminal: progress as a line every tenth of the steps, on stderr
+    assert "[hispo-pl] pointmaze-umaze-N[6] step 4/40 (10 %), loss " in err
+    assert "[hispo-pl] pointmaze-umaze-N[6] step 40/40 (100 %), loss " in err
 
     events = list(tmp_path.rglob("events.out.tfevents.*"))
     assert events, "no TensorBoard event file written"
@@ -168,9 +168,7 @@ def test_dotted_override_shows_in_printed_config(capsys):
 
 
 def test_config_typo_is_rejected_with_its_name(capsys):
-    with pytest.raises(SystemExit) as done:
-        main(["fit", "--config", str(CONFIGS[0]), "--trainer.max_stepz", "5"])
-    assert done.value.code != 0
+    assert main(["fit", "--config", str(CONFIGS[0]), "--trainer.max_stepz", "5"]) == 2
     assert "max_stepz" in capsys.readouterr().err
 
 
@@ -326,7 +324,5 @@ def test_acting_on_another_task_than_the_policys_own_is_named(tmp_path):
 
 def test_an_abbreviated_flag_is_a_typo_not_the_flag_it_starts(capsys):
     config = str(Path(__file__).parents[1] / "configs" / "hbc" / "pointmaze-umaze.yaml")
-    with pytest.raises(SystemExit) as exit:
-        main(["fit", "--config", config, "--trainer.max_step", "5"])
-    assert exit.value.code == 2
-    assert "unrecognized arguments: --trainer.max_step 5" in capsys.readouterr().err
+    assert main(["fit", "--config", config, "--trainer.max_step", "5"]) == 2
+    assert "unknown flag --trainer.max_step;" in capsys.readouterr().err

@@ -25,12 +25,12 @@ def _stream_args(save_dir: Path) -> list[str]:
 
 def test_stream_fit_prints_metrics_logs_and_resumes(tiny_umaze, tmp_path, capsys):
     assert main(_stream_args(tmp_path)) == 0
-    out = capsys.readouterr().out
+    out, err = capsys.readouterr()
     assert "stream pointmaze-umaze-N[3] -> pointmaze-umaze-PO[3]" in out
     assert "PER" in out and "BWT" in out and "anchors per subspace" in out
-    # per task: a header, progress as lines (the output is not a terminal), a summary
+    # per task: a header, progress as lines on stderr (not a terminal), a summary
     assert "task 1/2: pointmaze-umaze-N[3], 5 steps" in out
-    assert "task 2/2 step 5/5 (100 %), loss " in out
+    assert "task 2/2 step 5/5 (100 %), loss " in err
     assert "task 2/2 done in " in out and "(earlier tasks: mean " in out
     assert out.count("Trainable params") <= 1  # the model summary once per stream
 
@@ -174,8 +174,10 @@ def test_in_a_terminal_each_task_has_one_bar_over_its_steps(
     tiny_umaze, tmp_path, monkeypatch, capsys
 ):
     import hispo_pl.console as console
+    import hispo_pl.progress as progress
 
     monkeypatch.setattr(console, "interactive", lambda: True)
+    monkeypatch.setattr(progress, "interactive", lambda: True)
     args = tiny_stream_args("scn", tmp_path, STREAM, "--trainer.enable_progress_bar", "true")
     assert main(args) == 0
     captured = capsys.readouterr()

@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from contextlib import suppress
 from pathlib import Path
 
+from ..config_files import config_root
 from ..errors import Interrupted, RunDirError
 from ..io import atomic_write_text
 from . import plan
@@ -48,7 +49,7 @@ def _grid_main(parser, args, extra: list[str]) -> int:
         parser.error("--grid needs --export ROOT: where its runs are committed (docs/results)")
     if not args.report_only and not args.out:
         parser.error("--grid needs --out WORK: where its runs train (checkpoints, logs)")
-    config_dir = Path(args.config_dir)
+    config_dir = Path(args.config_dir) if args.config_dir else config_root()
     try:
         grid = load_grid(args.grid, config_dir)
         streams = grid_streams(grid, args.part)
@@ -82,9 +83,7 @@ def _grid_main(parser, args, extra: list[str]) -> int:
             print(f"[benchmark] wrote {path}")
         return 0
     if not (config_dir / "methods").is_dir():
-        parser.error(
-            f"no {config_dir / 'methods'}: run from the repository root or pass --config-dir"
-        )
+        parser.error(f"--config-dir {config_dir}: no methods/ folder in it")
     workers = args.workers or max(1, cpu_count() // args.num_threads)
     try:
         failed = run_grid(
@@ -150,11 +149,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("--num-threads and --workers must be >= 1")
     if args.address is not None and args.launcher != "ray":
         parser.error("--address is for --launcher ray")
-    config_dir = Path(args.config_dir)
+    config_dir = Path(args.config_dir) if args.config_dir else config_root()
     if not (config_dir / "methods").is_dir():
-        parser.error(
-            f"no {config_dir / 'methods'}: run from the repository root or pass --config-dir"
-        )
+        parser.error(f"--config-dir {config_dir}: no methods/ folder in it")
     try:
         stream_config = plan.stream_config_path(args.stream, config_dir)
         methods = plan.select_methods(args.methods, plan.known_methods(config_dir))

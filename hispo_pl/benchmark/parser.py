@@ -91,8 +91,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--config-dir",
-        default="configs",
-        help="where streams/ and methods/ live (default: configs)",
+        default=None,
+        help="where streams/ and methods/ live (default: ./configs in a checkout, else the "
+        "packaged configs)",
     )
     parser.add_argument(
         "--grid",

@@ -12,11 +12,11 @@ import shutil
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from ..envs import make_env
 from ..envs.family import family_behaviour
 from ..errors import UserError
+from ..progress import Progress
 from ..tasks import Task, parse_task
 from .datasets import (
     NAMESPACE,
@@ -202,15 +202,17 @@ def _generate(task, episodes, seed, noise, overwrite, progress, expert_weights) 
     staging = dataset_path("") / ".staging" / f"{name}-seed{seed}-noise{noise}"
     staging.mkdir(parents=True, exist_ok=True)
     ok = failed = flips = kept_steps = 0
-    for k in tqdm(range(episodes), desc=f"collecting {name}", disable=not progress, unit="ep"):
-        path = staging / f"ep_{k:05d}.npz"
-        if not path.exists():
-            rng = np.random.default_rng([seed, k])
-            ep_seed = seed * 1_000_003 + k
-            ep = behaviour.collect_episode(env, expert, rng, ep_seed, noise, steps)
-            tmp = path.with_suffix(".tmp.npz")
-            np.savez(tmp, **ep)
-            tmp.replace(path)
+    with Progress(f"collecting {name}", episodes, "episodes", progress) as collecting:
+        for k in range(episodes):
+            path = staging / f"ep_{k:05d}.npz"
+            if not path.exists():
+                rng = np.random.default_rng([seed, k])
+                ep_seed = seed * 1_000_003 + k
+                ep = behaviour.collect_episode(env, expert, rng, ep_seed, noise, steps)
+                tmp = path.with_suffix(".tmp.npz")
+                np.savez(tmp, **ep)
+                tmp.replace(path)
+            collecting.update()
     buffers = []
     for k in range(episodes):
         ep = dict(np.load(staging / f"ep_{k:05d}.npz"))

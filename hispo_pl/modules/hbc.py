@@ -218,8 +218,18 @@ class GoalConditionedBC(L.LightningModule):
         velocity: Tensor | None = None,
     ) -> Tensor:
         """Deterministic action; ``task`` selects the task's policy where a method keeps several
-        (default: the current task); ``velocity`` is the goal-space velocity (read by low
-        policies with ``low_velocity``)."""
+        (default: the current task); ``velocity`` is the goal-space velocity, which PointMaze's
+        policies read (``low_velocity``) and others ignore, so passing it always works.
+
+        Example (any method's checkpoint: its class is stored in the file)::
+
+            >>> import torch
+            >>> from hispo_pl.modules import GoalConditionedBC
+            >>> policy = GoalConditionedBC.from_checkpoint_file("runs/demo/seed0/task_02.ckpt")
+            >>> obs, pos, goal = torch.zeros(1, 4), torch.zeros(1, 2), torch.ones(1, 2)
+            >>> policy.act(obs, pos, goal, task=1, velocity=torch.zeros(1, 2)).shape
+            torch.Size([1, 2])
+        """
         policy, forward = self.acting_policy(self.task_index if task is None else task)
         return policy.act(observation, position, goal, velocity, forward)
 

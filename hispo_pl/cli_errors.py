@@ -1,0 +1,81 @@
+"""What ``hispo-pl fit`` says when its command line does not parse: one line naming the problem
+and the closest flag, instead of the parser's usage dump. Pure functions over the parser's
+message and the flags it knows."""
+
+from __future__ import annotations
+
+import difflib
+import re
+from collections.abc import Iterable, Mapping
+
+HELP = "hispo-pl fit --help lists the flags"
+_UNRECOGNIZED = re.compile(r"unrecognized arguments: (--[^\s=]+)")
+_PARSER_KEY = re.compile(r'Parser key "([^"]+)"')
+_NESTED = re.compile(r"unrecognized arguments: --([^\s=]+)|Option '([^']+)' is not accepted")
+
+
+def closest_flag(flag: str, known: Iterable[str]) -> str | None:
+    """The known flag nearest to ``flag`` (difflib's ratio, at least 0.6), or None."""
+    matches = difflib.get_close_matches(flag, sorted(set(known)), n=1, cutoff=0.6)
+    return matches[0] if matches else None
+
+
+def unknown_flag(message: str) -> str | None:
+    """The flag a parser message says it does not know, as the user would write it
+    (``--trainer.max_stepz``; ``--model.init_args.optim.lrr`` for a class's argument), or
+    None when the message is about something else."""
+    top = _UNRECOGNIZED.match(message)
+    if top:
+        return top.group(1)
+    key, nested = _PARSER_KEY.match(message), _NESTED.search(message)
+    if key and nested and "class_path" in message:
+        name = nested.group(1) or nested.group(2)
+        return f"--{key.group(1)}.init_args.{name}"
+    return None
+
+
+def parse_error_line(message: str, known: Iterable[str]) -> str:
+    """One line for a parser error: an unknown flag with the closest ``known`` one, or the
+    parser's own message with its lines joined."""
+    flag = unknown_flag(message)
+    if flag is None:
+        return " ".join(line.strip() for line in message.splitlines() if line.strip())
+    match = closest_flag(flag, known)
+    guess = f"; did you mean {match}?" if match else ""
+    return f"unknown flag {flag}{guess} ({HELP})"
+
+
+def dotted_flags(config: Mapping, prefix: str = "") -> list[str]:
+    """Every key of a parsed configuration as the flag that sets it (``--trainer.max_steps``,
+    ``--model.init_args.optim.lr``; a list of classes, the callbacks, as
+    ``--trainer.callbacks.init_args.episodes``)."""
+    flags = []
+    for key, value in config.items():
+        name = f"{prefix}.{key}" if prefix else str(key)
+        flags.append(f"--{name}")
+        if isinstance(value, Mapping):
+            flags += dotted_flags(value, name)
+        elif isinstance(value, list):
+            for item in value:
+                if isinstance(item, Mapping) and isinstance(item.get("init_args"), Mapping):
+                    flags += dotted_flags(item["init_args"], f"{name}.init_args")
+    return flags
+
+
+def without_flag(args: list[str], flag: str) -> list[str]:
+    """``args`` less ``flag`` and its value (``--a.b 5`` or ``--a.b=5``; for a class's
+    argument also the short form without ``init_args``)."""
+    forms = {flag, flag.replace(".init_args.", ".")}
+    out, skip = [], False
+    for i, arg in enumerate(args):
+        if skip:
+            skip = False
+            continue
+        if arg in forms:
+            nxt = args[i + 1] if i + 1 < len(args) else None
+            skip = nxt is not None and not nxt.startswith("--")
+            continue
+        if any(arg.startswith(f + "=") for f in forms):
+            continue
+        out.append(arg)
+    return out
