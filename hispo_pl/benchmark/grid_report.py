@@ -138,7 +138,7 @@ def aggregate_markdown(grid: Grid, rows: Sequence[AggregateRow]) -> str:
         )
     legend = (
         f"\nMeans over every run of a method on the streams where it has all {len(grid.seeds)} "
-        f"seeds ({', '.join(grid.streams)}); success ×100, MEM as a ratio. IQM: the "
+        f"seeds, of the grid's {', '.join(grid.streams)}; success ×100, MEM as a ratio. IQM: the "
         "interquartile mean of PER over those streams × seeds, with a 95 % stratified "
         f"bootstrap interval (rliable, {BOOTSTRAP_REPS} resamples of the seeds within each "
         "stream). The paper's columns are its Table 1, averaged over its six streams (AntMaze "
