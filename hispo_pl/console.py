@@ -154,6 +154,13 @@ class TaskProgressBar(TQDMProgressBar):
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self.train_progress_bar.set_postfix(self.get_metrics(trainer, pl_module))
 
+    def get_metrics(self, trainer: L.Trainer, pl_module: L.LightningModule) -> dict:
+        """The progress bar's values without Lightning's ``v_num`` (the logger's version,
+        ``seed0`` cut to ``eed0``): the run directory is printed once, not on every bar."""
+        metrics = super().get_metrics(trainer, pl_module)
+        metrics.pop("v_num", None)
+        return metrics
+
 
 def decision_lines(decisions: list[dict]) -> list[str]:
     """One line per task after the first: each subspace's keep / prune decision and the ratio
