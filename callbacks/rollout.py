@@ -16,7 +16,7 @@ from ..tasks import Task, parse_task
 class RolloutEvaluation(L.Callback):
     """Evaluates the policy with deterministic, seeded rollouts.
 
-    - every ``eval_every`` steps on the current task, logged as ``eval/success`` (single task)
+    - every ``eval_every`` steps on the current task, logged as ``eval/success`` in % (single task)
       or ``task_XX/eval/success`` (in a stream) at the global step;
     - at the end of training on the current task, or, when the datamodule belongs to a stream,
       on every task of the stream. That row goes to the module's ``task_record.success_row``
@@ -79,7 +79,7 @@ class RolloutEvaluation(L.Callback):
             prefix = pl_module.log_prefix
             trainer.logger.log_metrics(
                 {
-                    f"{prefix}eval/success": result.success,
+                    f"{prefix}eval/success": 100 * result.success,  # %, as the console
                     f"{prefix}eval/episode_length": result.episode_length,
                     f"{prefix}eval/flip_rate": result.flip_rate,
                 },

@@ -16,6 +16,7 @@ from typing_extensions import override
 
 from ..decisions import decided_by_budget, keep_previous
 from ..rundir import RunDir, task_label
+from ..stream_report import PRUNE_BAR
 from ..tasks import Family
 from .protocols import require_subspace_policy
 from .rollout import RolloutEvaluation
@@ -160,6 +161,10 @@ def decide_subspaces(
     return decisions
 
 
+def _number(value) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
 def log_decisions(trainer: L.Trainer, module, decisions: list[dict]) -> None:
     """Append decisions to ``decisions.jsonl`` in the run dir and log them to TensorBoard."""
     RunDir(trainer.default_root_dir).append_decisions(decisions)
@@ -173,6 +178,8 @@ def log_decisions(trainer: L.Trainer, module, decisions: list[dict]) -> None:
             metrics[f"search/{d['subspace']}/L_prev"] = d["l_prev"]
         if d.get("l_curr") is not None:
             metrics[f"search/{d['subspace']}/L_curr"] = d["l_curr"]
+        if d.get("l_prev") is not None and d.get("rule") != "critic" and _number(d.get("eps")):
+            metrics[f"search/{d['subspace']}/{PRUNE_BAR}"] = (1 + d["eps"]) * d["l_curr"]
         if d.get("l_trained") is not None:  # refine_current replaced the trained weights
             metrics[f"search/{d['subspace']}/L_trained"] = d["l_trained"]
         for key, tag in (

@@ -150,7 +150,8 @@ class TaskProgressBar(TQDMProgressBar):
         self.train_progress_bar.set_postfix(self.get_metrics(trainer, pl_module))
 
     def get_metrics(self, trainer: L.Trainer, pl_module: L.LightningModule) -> dict:
-        """The losses, without the logger's version (``v_num``), which is not progress."""
+        """The progress bar's values without Lightning's ``v_num`` (the logger's version,
+        ``seed0`` cut to ``eed0``): the run directory is printed once, not on every bar."""
         metrics = super().get_metrics(trainer, pl_module)
         metrics.pop("v_num", None)
         return metrics

@@ -1,4 +1,5 @@
-"""Figures of a stream's results: the success matrix, anchor weights per task, the simplex.
+"""Figures of a stream's results: the success matrix, anchor weights per task, the simplex,
+and a benchmark's performance against memory.
 
 Shared by TensorBoard (:mod:`hispo_pl.stream_report`) and the anchor-weights notebook. Only
 ``matplotlib.figure.Figure`` is used (no pyplot), so nothing depends on a display backend.
@@ -10,6 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.ticker import ScalarFormatter
 
 from .rundir import task_label
 
@@ -26,12 +28,27 @@ def task_labels(n: int) -> list[str]:
     return [task_tag(k) for k in range(n)]
 
 
-def success_matrix_figure(R: Sequence[Sequence[float | None]]) -> Figure:
-    """R[i][k] (success on task k after training task i) as an annotated heatmap; tasks not
-    trained yet are blank."""
+def matrix_tick_labels(n: int, tasks: Sequence[str] | None = None) -> list[str]:
+    """``T01`` per task, or ``T01 pointmaze-umaze-N[500]`` when the task specs are known: a
+    matrix read on its own (a paper's figure) names its tasks."""
+    labels = task_labels(n)
+    if tasks is None:
+        return labels
+    if len(tasks) != n:
+        raise ValueError(f"{len(tasks)} task names for a {n}-task matrix")
+    return [f"{label} {task}" for label, task in zip(labels, tasks, strict=True)]
+
+
+def success_matrix_figure(
+    R: Sequence[Sequence[float | None]], tasks: Sequence[str] | None = None
+) -> Figure:
+    """R[i][k] (success on task k after training task i) as an annotated heatmap in %; tasks
+    not trained yet are blank. With ``tasks`` (the stream's specs) the rows name them."""
     matrix = np.array([[np.nan if v is None else v for v in row] for row in R], dtype=float)
     n = len(matrix)
-    fig = Figure(figsize=(1.6 + 0.7 * n, 1.2 + 0.6 * n))
+    rows = matrix_tick_labels(n, tasks)
+    longest = max((len(label) for label in rows), default=0)
+    fig = Figure(figsize=(2.2 + 0.7 * n + 0.075 * longest, 1.4 + 0.6 * n), layout="constrained")
     ax = fig.add_subplot()
     image = ax.imshow(100 * matrix, vmin=0, vmax=100, cmap="viridis")
     for i in range(n):
@@ -40,21 +57,34 @@ def success_matrix_figure(R: Sequence[Sequence[float | None]]) -> Figure:
                 value = 100 * matrix[i, k]
                 color = "black" if value > 60 else "white"
                 ax.text(k, i, f"{value:.0f}", ha="center", va="center", color=color, fontsize=9)
-    labels = task_labels(n)
-    ax.set_xticks(range(n), labels)
-    ax.set_yticks(range(n), labels)
+    ax.set_xticks(range(n), task_labels(n))
+    ax.set_yticks(range(n), rows)
     ax.set_xlabel("success on task")
     ax.set_ylabel("after training task")
     fig.colorbar(image, ax=ax, label="success (%)")
-    fig.tight_layout()
     return fig
 
 
+def stream_summary(results: dict) -> str:
+    """``PER 99.4  BWT 0.0  FWT 0.6 (success %)  MEM 1.93``: the stream metrics as the tables
+    print them (success ×100, MEM a ratio of model sizes, never a percentage)."""
+    parts = [
+        f"{key} {100 * results[key]:.1f}"
+        for key in ("PER", "BWT", "FWT")
+        if results.get(key) is not None
+    ]
+    text = "  ".join(parts) + (" (success %)" if parts else "")
+    if results.get("MEM") is not None:
+        text += f"  MEM {results['MEM']:.2f}"
+    return text.strip()
+
+
 def anchor_weights_figure(alphas: Sequence[Sequence[float]], subspace: str) -> Figure:
-    """Each task's anchor weights in one subspace as a stacked bar (rows: tasks)."""
+    """Each task's anchor weights in one subspace as a stacked bar (rows: tasks); the layout
+    makes room for the title and the legend (TensorBoard shows the canvas as drawn)."""
     weights = np.asarray(alphas, dtype=float)
     n_tasks, n_anchors = weights.shape
-    fig = Figure(figsize=(2.4 + 0.6 * n_tasks, 3.2))
+    fig = Figure(figsize=(max(4.8, 2.6 + 0.6 * n_tasks), 3.8), layout="constrained")
     ax = fig.add_subplot()
     x = np.arange(n_tasks)
     bottom = np.zeros(n_tasks)
@@ -63,11 +93,12 @@ def anchor_weights_figure(alphas: Sequence[Sequence[float]], subspace: str) -> F
         ax.bar(x, weights[:, j], bottom=bottom, color=colors[j], label=f"anchor {j + 1}", width=0.7)
         bottom += weights[:, j]
     ax.set_xticks(x, task_labels(n_tasks))
+    ax.set_xlabel("task")
     ax.set_ylim(0, 1.02)
     ax.set_ylabel("weight")
-    ax.set_title(f"{subspace}: anchor weights per task ({n_anchors} anchors)")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
-    fig.tight_layout()
+    plural = "s" if n_anchors > 1 else ""
+    fig.suptitle(f"{subspace}: anchor weights per task ({n_anchors} anchor{plural})", fontsize=11)
+    fig.legend(loc="outside lower center", ncols=min(n_anchors, 5), fontsize="small")
     return fig
 
 
@@ -89,7 +120,7 @@ def simplex_figure(
     if weights.shape[1] != 3:
         raise ValueError(f"the simplex needs 3 anchors, got {weights.shape[1]}")
     labels = task_labels(len(weights))
-    fig = Figure(figsize=(5.5, 4.8))
+    fig = Figure(figsize=(5.5, 4.8), layout="constrained")
     ax = fig.add_subplot()
     ax.fill(*TRIANGLE.T, fill=False, edgecolor="0.3", lw=1)
     for j, (vx, vy) in enumerate(TRIANGLE):
@@ -118,4 +149,118 @@ def simplex_figure(
     ax.axis("off")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, 0.0), ncols=2, fontsize="small")
     ax.set_title(f"{subspace}: anchor weights per task on the simplex")
+    return fig
+
+
+def plain_ticks(ax) -> None:
+    """Tick labels as the values themselves: no offset ("+4") and no scientific notation, so
+    equal values never look spread over an axis of 0.00005 steps."""
+    for axis in (ax.xaxis, ax.yaxis):
+        formatter = ScalarFormatter(useOffset=False)
+        formatter.set_scientific(False)
+        axis.set_major_formatter(formatter)
+
+
+def span_limits(lo: float, hi: float, min_span: float) -> tuple[float, float]:
+    """Limits around ``[lo, hi]`` at least ``min_span`` wide (centred), with a 10 % margin:
+    values that differ in the fifth decimal stay on one spot."""
+    centre, half = (lo + hi) / 2, max(hi - lo, min_span) / 2
+    return centre - 1.1 * half, centre + 1.1 * half
+
+
+def label_offsets(
+    points: Sequence[tuple[float, float]],
+    sizes: Sequence[tuple[float, float]],
+    gap: float = 4.0,
+    bounds: tuple[float, float, float, float] | None = None,
+) -> list[tuple[float, float]]:
+    """Where each point's label goes, as offsets in points from the point to the label's
+    lower-left corner: the first of a few places around it (then further up or down) whose box
+    of ``sizes`` (width, height, in points) meets no label already placed and no other point,
+    and stays inside ``bounds`` (the axes: x0, y0, x1, y1) when given. ``points`` are in
+    points on the page, so labels of coincident points stack, not overlap."""
+    placed: list[tuple[float, float, float, float]] = []
+    offsets = []
+    for i, ((x, y), (w, h)) in enumerate(zip(points, sizes, strict=True)):
+        candidates = [(gap, gap), (gap, -gap - h), (-gap - w, gap), (-gap - w, -gap - h)]
+        candidates += [(gap, gap + k * (h + 1)) for k in range(1, 8)]
+        candidates += [(gap, -gap - h - k * (h + 1)) for k in range(1, 8)]
+        marks = [(px - 3, py - 3, px + 3, py + 3) for j, (px, py) in enumerate(points) if j != i]
+        boxes = [(x + dx, y + dy, x + dx + w, y + dy + h) for dx, dy in candidates]
+        free = [
+            n
+            for n, box in enumerate(boxes)
+            if not any(_overlap(box, o) for o in placed + marks) and _within(box, bounds)
+        ]
+        n = free[0] if free else 0
+        placed.append(boxes[n])
+        offsets.append(candidates[n])
+    return offsets
+
+
+def _overlap(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
+def _within(box: tuple[float, ...], bounds: tuple[float, ...] | None) -> bool:
+    if bounds is None:
+        return True
+    return (
+        bounds[0] <= box[0] and bounds[1] <= box[1] and box[2] <= bounds[2] and box[3] <= bounds[3]
+    )
+
+
+def perf_vs_memory_figure(rows: Sequence, stream: str = "") -> Figure:
+    """The paper's Figure 2: MEM on x, PER (%) on y over the whole 0..100 range, one marker
+    per method (rows with ``method``, ``seeds``, ``MEM`` and ``PER`` as (mean, std)), error
+    bars of the std over seeds where there are several (one seed has no interval: the legend
+    says so), each method labelled next to its marker without overlaps."""
+    rows = [r for r in rows if r.MEM is not None]
+    fig = Figure(figsize=(6.8, 4.5), layout="constrained")
+    ax = fig.add_subplot()
+    markers, colors = "osD^vP*Xh<>p", []
+    for i, row in enumerate(rows):
+        (x, xs), (y, ys) = row.MEM, row.PER
+        several = len(row.seeds) > 1
+        drawn = ax.errorbar(
+            x,
+            100 * y,
+            xerr=xs if several else None,
+            yerr=100 * ys if several else None,
+            fmt=markers[i % len(markers)],
+            capsize=3,
+            label=f"{row.method} ({len(row.seeds)} seed{'s' if several else ''}"
+            f"{'' if several else ', no interval'})",
+        )
+        colors.append(drawn.lines[0].get_color())
+    xs_all = [r.MEM[0] for r in rows] or [1.0]
+    ax.set_xlim(*span_limits(min(xs_all), max(xs_all), min_span=1.0))
+    top = max([100 * (r.PER[0] + r.PER[1]) for r in rows] + [100.0])
+    ax.set_ylim(0, top + 4)
+    ax.set_yticks(range(0, 101, 20))
+    plain_ticks(ax)
+    ax.xaxis.set_major_formatter("{x:.2f}")
+    ax.set_xlabel("MEM (stored size / one single-task model)")
+    ax.set_ylabel("PER (success %, mean ± std over seeds)")
+    ax.set_title(f"Performance vs memory{': ' + stream if stream else ''}")
+    ax.grid(alpha=0.3)
+    if rows:
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.draw_without_rendering()  # the layout's final axes, so labels are placed as drawn
+    fontsize = 8
+    points = ax.transData.transform([(r.MEM[0], 100 * r.PER[0]) for r in rows]) * 72 / fig.dpi
+    sizes = [(0.62 * fontsize * len(r.method), 1.2 * fontsize) for r in rows]
+    frame = ax.get_window_extent().extents * 72 / fig.dpi
+    offsets = label_offsets([tuple(p) for p in points], sizes, bounds=tuple(frame))
+    for row, color, (dx, dy) in zip(rows, colors, offsets, strict=True):
+        ax.annotate(
+            row.method,
+            (row.MEM[0], 100 * row.PER[0]),
+            xytext=(dx, dy),
+            textcoords="offset points",
+            ha="left",
+            va="bottom",
+            color=color,
+            fontsize=fontsize,
+        )
     return fig

@@ -240,6 +240,7 @@ class ContinualLoop:
         self.checkpoint_every = checkpoint_every
         self.pictures = pictures  # a rollout picture per task in TensorBoard
         self._loggers: list = []  # the trainers' loggers, for the stream-level report
+        self._layout_logged = False
 
     # --- progress on disk -------------------------------------------------------------------
 
@@ -378,7 +379,12 @@ class ContinualLoop:
         self._loggers = list(trainer.loggers)
         if self._loggers:
             picture = self._rollout_picture(k) if self.pictures else None
-            log_task_end(self._loggers, k, row, picture)
+            subspaces = None
+            if not self._layout_logged:  # the Custom Scalars layout, once per run
+                decided = self.run_dir.read_decisions()
+                subspaces = list(dict.fromkeys(d["subspace"] for d in decided))
+                self._layout_logged = True
+            log_task_end(self._loggers, k, row, picture, subspaces)
         atomic_save(
             self.run_dir.checkpoint(k), lambda tmp: trainer.save_checkpoint(tmp, weights_only=False)
         )

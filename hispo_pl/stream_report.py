@@ -4,12 +4,14 @@ scalars and as the HParams tab's metrics, the success matrix as a heatmap and a 
 anchor weights per task and the decisions.
 
 Every stream-level value is logged at step = number of tasks trained (1 after the first task),
-through every logger of the trainer (TensorBoard, CSV, MLflow, W&B...); figures and text go to
-the loggers that can show them (TensorBoard).
+through every logger of the trainer (TensorBoard, CSV, MLflow, W&B...); figures, text and the
+Custom Scalars layout go to the loggers that can show them (TensorBoard). Success values are in
+% as the console and the tables print them (``results.json`` keeps fractions); MEM is a ratio.
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 
 from lightning.pytorch.loggers import Logger, TensorBoardLogger
@@ -24,6 +26,8 @@ from .figures import (
 )
 
 STREAM_METRICS = ("PER", "BWT", "FWT", "MEM")
+PERCENT_METRICS = ("PER", "BWT", "FWT")  # success differences, ×100 as the tables print them
+PRUNE_BAR = "L_curr_x_1_plus_eps"  # (1 + eps) * L_curr; '+' and '()' are not allowed in tags
 
 
 def task_row_metrics(task_index: int, row: Sequence[float]) -> dict[str, float]:
@@ -31,16 +35,27 @@ def task_row_metrics(task_index: int, row: Sequence[float]) -> dict[str, float]:
     curve starts with its zero-shot points, then shows what is kept or forgotten) and the mean
     over the tasks trained so far."""
     metrics = {
-        f"stream/success/{label}": s for label, s in zip(task_labels(len(row)), row, strict=True)
+        f"stream/success/{label}": 100 * s
+        for label, s in zip(task_labels(len(row)), row, strict=True)
     }
     seen = row[: task_index + 1]
-    metrics["stream/success/mean_seen"] = sum(seen) / len(seen)
+    metrics["stream/success/mean_seen"] = 100 * sum(seen) / len(seen)
     return metrics
 
 
 def stream_metrics(results: dict) -> dict[str, float]:
-    """``stream/PER`` ... of a finished stream's results (those it has)."""
-    return {f"stream/{k}": float(results[k]) for k in STREAM_METRICS if results.get(k) is not None}
+    """``stream/PER`` ... of a finished stream's results (those it has): PER, BWT, FWT in %,
+    MEM as a ratio."""
+    return {
+        f"stream/{k}": (100 if k in PERCENT_METRICS else 1) * float(results[k])
+        for k in STREAM_METRICS
+        if results.get(k) is not None
+    }
+
+
+def anchor_metrics(results: dict) -> dict[str, float]:
+    """``anchors/<subspace>/count`` of a finished stream: the HParams tab's anchor columns."""
+    return {f"anchors/{k}/count": float(v) for k, v in (results.get("anchors") or {}).items()}
 
 
 def alpha_metrics(alphas: dict[str, Sequence[Sequence[float]]]) -> dict[str, float]:
@@ -82,6 +97,21 @@ def decisions_markdown(decisions: Sequence[dict]) -> str:
     return "\n".join(lines)
 
 
+def anchors_markdown(decisions: Sequence[dict]) -> str:
+    """The anchor count of each subspace after each task, with the decision that set it (a
+    few points a line chart hardly shows)."""
+    subspaces = list(dict.fromkeys(d["subspace"] for d in decisions if "anchors" in d))
+    last = {(d["task"], d["subspace"]): d for d in decisions if "anchors" in d}
+    lines = ["| after | " + " | ".join(subspaces) + " |", "|---|" + "---:|" * len(subspaces)]
+    for task in sorted({t for t, _ in last}):
+        cells = [
+            f"{last[task, s]['anchors']} ({last[task, s]['decision']})" if (task, s) in last else ""
+            for s in subspaces
+        ]
+        lines.append(f"| {task_tag(task)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def plain_hparams(settings: dict) -> dict[str, float | int | str | bool]:
     """Run settings as values the HParams tab accepts (anything else as text)."""
     return {
@@ -89,16 +119,105 @@ def plain_hparams(settings: dict) -> dict[str, float | int | str | bool]:
     }
 
 
-def log_task_end(
-    loggers: Sequence[Logger], task_index: int, row: Sequence[float], picture: Figure | None
+# (HParams name, pattern of the flat setting it reads): the choices that tell runs apart
+CHOSEN_SETTINGS = (
+    ("seed", r"seed_everything"),
+    ("preset", r"preset"),
+    ("steps_per_task", r"trainer\.max_steps"),
+    ("batch_size", r"data\.batch_size"),
+    ("lr", r"model\.init_args\.optim\.lr"),
+    ("episodes", r"trainer\.callbacks\[\d+\]\.init_args\.episodes"),
+)
+WIDTH = re.compile(r"model\.init_args\.(?:backbone\.)?(\w*(?:hidden|width)\w*)")
+
+
+def chosen_hparams(settings: dict, decisions: Sequence[dict] = ()) -> dict:
+    """The HParams tab's columns: the settings a user chooses between runs (method, stream,
+    seed, steps per task, batch, learning rate, widths, evaluation episodes) and each
+    subspace's pruning tolerance as applied (the decisions' ``eps``, so a family default shows
+    its value, not ``None``). Lightning's defaults and positional callback keys stay out;
+    the whole configuration is in the run directory's ``task_XX.config.yaml``."""
+    chosen: dict = {}
+    if settings.get("model.class_path"):
+        chosen["method"] = str(settings["model.class_path"]).rsplit(".", 1)[-1]
+    stream = settings.get("data.stream")
+    if stream:
+        chosen["stream"] = stream if isinstance(stream, str) else " -> ".join(map(str, stream))
+    for name, pattern in CHOSEN_SETTINGS:
+        values = [v for k, v in settings.items() if re.fullmatch(pattern, k) and v is not None]
+        if values:
+            chosen[name] = values[0]
+    for key, value in settings.items():
+        width = WIDTH.fullmatch(key)
+        if width and value is not None:
+            chosen[width.group(1)] = value
+    for d in decisions:
+        if isinstance(d.get("eps"), int | float) and not isinstance(d.get("eps"), bool):
+            chosen[f"eps_{d['subspace']}"] = d["eps"]
+    return plain_hparams(chosen)
+
+
+def custom_scalars_layout(subspaces: Sequence[str] = ()) -> dict:
+    """TensorBoard's Custom Scalars tab: every task's forgetting curve in one chart, the anchor
+    counts in one, and per subspace the pruning rule's two sides in one (the new anchor is
+    pruned when ``L_prev`` is at or below ``(1 + eps) * L_curr``)."""
+    stream = {
+        "success on each task after each task trained (%)": [
+            "Multiline",
+            [r"stream/success/T\d+$"],
+        ],
+        "mean success on the tasks trained so far (%)": [
+            "Multiline",
+            [r"stream/success/mean_seen$"],
+        ],
+        "anchors per subspace after each task": ["Multiline", [r"anchors/[^/]+/count$"]],
+    }
+    layout = {"stream": stream}
+    if subspaces:
+        layout["pruning rule"] = {
+            f"{name}: L_prev against (1+eps)·L_curr (pruned where L_prev is not above)": [
+                "Multiline",
+                [f"search/{re.escape(name)}/(L_prev|{PRUNE_BAR})$"],
+            ]
+            for name in subspaces
+        }
+    return layout
+
+
+def write_hparams(
+    logger: TensorBoardLogger, hparams: dict, columns: Sequence[str], step: int
 ) -> None:
-    """After task ``task_index``: the forgetting curves' next point, and the rollout picture."""
+    """The HParams tab's entry: ``hparams`` and, as its metric columns, the scalar tags
+    ``columns`` (already logged: each column shows its tag's last value). Lightning's
+    ``log_hyperparams(params, metrics)`` would log every column again as a scalar."""
+    from torch.utils.tensorboard.summary import hparams as hparams_summaries
+
+    logger.log_hyperparams(hparams)  # hparams.yaml; no summary without metrics
+    writer = logger.experiment._get_file_writer()  # as Lightning's own log_hyperparams
+    for summary in hparams_summaries(hparams, dict.fromkeys(columns, 0.0)):
+        writer.add_summary(summary, step)
+
+
+def log_task_end(
+    loggers: Sequence[Logger],
+    task_index: int,
+    row: Sequence[float],
+    picture: Figure | None,
+    subspaces: Sequence[str] | None = None,
+) -> None:
+    """After task ``task_index``: the forgetting curves' next point, and the rollout picture.
+    With ``subspaces`` (the names the method decides on; [] for none), TensorBoard also gets
+    the Custom Scalars layout (give them once: the tab reads one layout per run)."""
     step = task_index + 1
     metrics = task_row_metrics(task_index, row)
     for logger in loggers:
         logger.log_metrics(metrics, step=step)
-        if picture is not None and isinstance(logger, TensorBoardLogger):
+        if not isinstance(logger, TensorBoardLogger):
+            continue
+        if picture is not None:
             logger.experiment.add_figure(f"rollouts/{task_tag(task_index)}", picture, step)
+        if subspaces is not None:
+            logger.experiment.add_custom_scalars(custom_scalars_layout(subspaces))
 
 
 def log_stream_end(
@@ -109,13 +228,14 @@ def log_stream_end(
     step = len(results["R"])
     metrics = stream_metrics(results)
     alphas = results.get("alphas") or {}
-    hparams = plain_hparams(settings)
+    hparams = chosen_hparams(settings, decisions)
     for logger in loggers:
-        logger.log_metrics(alpha_metrics(alphas), step=step)
         if isinstance(logger, TensorBoardLogger):
-            logger.log_hyperparams(hparams, metrics=metrics, step=step)  # writes the scalars too
+            logger.log_metrics(metrics, step=step)
+            write_hparams(logger, hparams, [*metrics, *anchor_metrics(results)], step)
             writer = logger.experiment
-            writer.add_figure("stream/success_matrix", success_matrix_figure(results["R"]), step)
+            matrix = success_matrix_figure(results["R"], results.get("stream"))
+            writer.add_figure("stream/success_matrix", matrix, step)
             writer.add_text("stream/success_matrix", success_markdown(results["R"]), step)
             for subspace, rows in alphas.items():
                 writer.add_figure(f"alpha/{subspace}", anchor_weights_figure(rows, subspace), step)
@@ -125,7 +245,8 @@ def log_stream_end(
                     )
             if decisions:
                 writer.add_text("stream/decisions", decisions_markdown(decisions), step)
-        else:
+                writer.add_text("stream/anchors", anchors_markdown(decisions), step)
+        else:  # no pictures: the anchor weights as scalars
             logger.log_hyperparams(hparams)
-            logger.log_metrics(metrics, step=step)
+            logger.log_metrics({**metrics, **alpha_metrics(alphas)}, step=step)
         logger.save()

@@ -66,14 +66,14 @@ def test_fit_trains_evaluates_logs_and_prints_success(tiny_umaze, tmp_path, caps
     assert {"train/loss_high", "train/loss_low", "eval/success"} <= set(tags)
     success = acc.Scalars("eval/success")
     assert [s.step for s in success] == [20, 40]  # periodic, then at the end of training
-    assert all(0.0 <= s.value <= 1.0 for s in success)
+    assert all(0.0 <= s.value <= 100.0 for s in success)  # in %, as the console prints it
     checkpoints = list(tmp_path.rglob("*.ckpt"))
     assert checkpoints, "no checkpoint written"
     (result_file,) = tmp_path.rglob("result.json")
     result = json.loads(result_file.read_text())
     assert result["method"] == "HBC" and result["task"] == "pointmaze-umaze-N[6]"
     assert result["step"] == 40 and result["episodes"] == 4
-    assert result["success"] == pytest.approx(success[-1].value)
+    assert 100 * result["success"] == pytest.approx(success[-1].value)
 
     # the checkpoint alone rebuilds the policy; evaluate it on a task it never saw
     capsys.readouterr()

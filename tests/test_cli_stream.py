@@ -59,7 +59,7 @@ def test_stream_fit_prints_metrics_logs_and_resumes(tiny_umaze, tmp_path, capsys
     assert {"anchors/low/count", "task_01/train/loss", "task_02/train/loss"} <= tags
     first_task = acc.Scalars("stream/success/T01")  # one step convention: tasks trained
     assert [s.step for s in first_task] == [1, 2]
-    assert first_task[0].value == pytest.approx(results["R"][0][0])
+    assert first_task[0].value == pytest.approx(100 * results["R"][0][0])  # in %
     counts = acc.Scalars("anchors/high/count")
     assert [s.step for s in counts] == [1, 2]
     assert counts[-1].value == results["anchors"]["high"]
@@ -109,14 +109,15 @@ def _assert_stream_report(run_dir: Path, results: dict) -> None:
     acc = EventAccumulator(str(run_dir), size_guidance={"images": 0, "tensors": 0})
     acc.Reload()
     tags = acc.Tags()
-    for metric in ("PER", "BWT", "MEM"):
+    for metric, scale in (("PER", 100), ("BWT", 100), ("MEM", 1)):  # success in %, as printed
         (point,) = acc.Scalars(f"stream/{metric}")
-        assert point.step == 2 and point.value == pytest.approx(results[metric])
+        assert point.step == 2 and point.value == pytest.approx(scale * results[metric])
     assert "hp_metric" not in tags["scalars"]
     curve = acc.Scalars("stream/success/T01")
-    assert [(p.step, p.value) for p in curve] == [(1, results["R"][0][0]), (2, results["R"][1][0])]
-    weight = acc.Scalars("alpha/high/T02/anchor_2")[0].value
-    assert weight == pytest.approx(results["alphas"]["high"][1][1])
+    R = results["R"]
+    assert [(p.step, p.value) for p in curve] == [(1, 100 * R[0][0]), (2, 100 * R[1][0])]
+    # the anchor weights are pictures, not one-point scalar charts
+    assert not [t for t in tags["scalars"] if t.startswith("alpha/")]
     assert {
         "stream/success_matrix",
         "alpha/high",
@@ -124,11 +125,72 @@ def _assert_stream_report(run_dir: Path, results: dict) -> None:
         "rollouts/T01",
         "rollouts/T02",
     } <= set(tags["images"])
-    assert {"stream/decisions/text_summary", "stream/success_matrix/text_summary"} <= set(
-        tags["tensors"]
-    )
-    experiment = acc.PluginTagToContent("hparams")["_hparams_/experiment"]
-    assert b"stream/PER" in experiment and b"stream/MEM" in experiment
+    assert {
+        "stream/decisions/text_summary",
+        "stream/success_matrix/text_summary",
+        "stream/anchors/text_summary",
+    } <= set(tags["tensors"])
+    _assert_custom_scalars(acc, tags["scalars"])
+    _assert_hparams(acc, results)
+
+
+def _assert_custom_scalars(acc: EventAccumulator, scalars: list[str]) -> None:
+    """One chart holds every task's forgetting curve, one each subspace's L_prev and the bar it
+    is compared with, one the anchor counts; each chart's patterns match logged tags."""
+    import re
+
+    from tensorboard.plugins.custom_scalar import layout_pb2
+
+    (event,) = acc.Tensors("custom_scalars__config__")
+    layout = layout_pb2.Layout.FromString(event.tensor_proto.string_val[0])
+    charts = {
+        chart.title: [t for regex in chart.multiline.tag for t in scalars if re.search(regex, t)]
+        for category in layout.category
+        for chart in category.chart
+    }
+    forgetting = next(tags for title, tags in charts.items() if "on each task" in title)
+    assert sorted(forgetting) == ["stream/success/T01", "stream/success/T02"]
+    anchors = next(tags for title, tags in charts.items() if title.startswith("anchors"))
+    assert sorted(anchors) == ["anchors/high/count", "anchors/low/count"]
+    for subspace in ("high", "low"):
+        rule = next(tags for title, tags in charts.items() if title.startswith(f"{subspace}:"))
+        bar = f"search/{subspace}/L_curr_x_1_plus_eps"
+        assert sorted(rule) == [bar, f"search/{subspace}/L_prev"]
+
+
+def _assert_hparams(acc: EventAccumulator, results: dict) -> None:
+    """The HParams tab: the settings a user chose, by name (no Lightning defaults, no
+    positional callback keys), and the stream metrics with the anchor counts."""
+    from tensorboard.plugins.hparams import plugin_data_pb2
+
+    content = acc.PluginTagToContent("hparams")
+    start = plugin_data_pb2.HParamsPluginData.FromString(content["_hparams_/session_start_info"])
+    hparams = start.session_start_info.hparams
+    assert set(hparams) == {
+        "method",
+        "stream",
+        "seed",
+        "steps_per_task",
+        "batch_size",
+        "lr",
+        "high_hidden",
+        "low_hidden",
+        "episodes",
+        "eps_high",
+        "eps_low",
+    }
+    assert hparams["method"].string_value == "HiSPO"
+    assert hparams["stream"].string_value == " -> ".join(STREAM)
+    assert hparams["steps_per_task"].number_value == 5
+    experiment = plugin_data_pb2.HParamsPluginData.FromString(content["_hparams_/experiment"])
+    metrics = {m.name.tag for m in experiment.experiment.metric_infos}
+    assert metrics == {
+        "stream/PER",
+        "stream/BWT",
+        "stream/MEM",
+        "anchors/high/count",
+        "anchors/low/count",
+    }
 
 
 def test_a_stream_logs_its_report_through_any_logger(tiny_umaze, tmp_path, capsys):
@@ -184,6 +246,7 @@ def test_in_a_terminal_each_task_has_one_bar_over_its_steps(
     bars = captured.out + captured.err
     assert "task 2/2: 100%" in bars and "5/5" in bars
     assert "Epoch 0" not in bars  # not Lightning's per-epoch bar
+    assert "v_num" not in bars  # nor the logger's version, seed0 cut to "eed0"
 
 
 def test_a_stream_on_a_minari_dataset_names_it_and_its_episodes(tiny_umaze, tmp_path, capsys):

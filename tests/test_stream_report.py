@@ -8,6 +8,9 @@ import pytest
 from hispo_pl.figures import simplex_figure, success_matrix_figure, to_triangle
 from hispo_pl.stream_report import (
     alpha_metrics,
+    anchors_markdown,
+    chosen_hparams,
+    custom_scalars_layout,
     decisions_markdown,
     stream_metrics,
     success_markdown,
@@ -17,17 +20,21 @@ from hispo_pl.stream_report import (
 
 def test_task_row_metrics_cover_every_task_and_the_mean_of_those_seen():
     metrics = task_row_metrics(1, [1.0, 0.5, 0.2])  # the third task: a zero-shot point
-    assert metrics == {
-        "stream/success/T01": 1.0,
-        "stream/success/T02": 0.5,
-        "stream/success/T03": 0.2,
-        "stream/success/mean_seen": 0.75,
-    }
+    assert metrics == pytest.approx(  # in %, as the console and the tables print success
+        {
+            "stream/success/T01": 100.0,
+            "stream/success/T02": 50.0,
+            "stream/success/T03": 20.0,
+            "stream/success/mean_seen": 75.0,
+        }
+    )
 
 
 def test_stream_and_alpha_metrics():
-    results = {"PER": 0.9, "BWT": 0.0, "FWT": None, "MEM": 2.07}
-    assert stream_metrics(results) == {"stream/PER": 0.9, "stream/BWT": 0.0, "stream/MEM": 2.07}
+    results = {"PER": 0.9, "BWT": -0.012, "FWT": None, "MEM": 2.07}
+    assert stream_metrics(results) == pytest.approx(  # success in %, MEM a ratio
+        {"stream/PER": 90.0, "stream/BWT": -1.2, "stream/MEM": 2.07}
+    )
     alphas = {"low": [[1.0, 0.0], [0.25, 0.75]]}
     assert alpha_metrics(alphas) == {
         "alpha/low/T01/anchor_1": 1.0,
@@ -115,3 +122,87 @@ def test_zero_shot_records_have_no_pruning_tolerance():
         [{"task": 1, "subspace": "low", "decision": "zero-shot", "eps": {"low": 1.0}}]
     ).splitlines()[2]
     assert row == "| T02 | low | zero-shot |  |  |  |  |  |"
+
+
+FINGERPRINT = {  # a stream run's flat settings, as the loop stores them
+    "seed_everything": 3,
+    "trainer.accelerator": "cpu",
+    "trainer.inference_mode": True,
+    "trainer.max_steps": 3000,
+    "trainer.callbacks[1].class_path": "hispo_pl.callbacks.DirichletEvaluation",
+    "trainer.callbacks[1].init_args.n_candidates": 1024,
+    "trainer.callbacks[2].init_args.eps_low": None,
+    "trainer.callbacks[3].init_args.episodes": 100,
+    "model.class_path": "hispo_pl.modules.HiSPO",
+    "model.init_args.backbone.high_hidden": 64,
+    "model.init_args.backbone.low_hidden": 256,
+    "model.init_args.backbone.dropout": 0.1,
+    "model.init_args.optim.lr": 0.001,
+    "data.batch_size": 1024,
+    "data.stream": ["pointmaze-umaze-N[500]", "pointmaze-umaze-PA[500]"],
+    "preset": None,
+}
+DECISIONS = [
+    {"task": 0, "subspace": "high", "decision": "first", "eps": 0.1, "anchors": 1},
+    {"task": 0, "subspace": "low", "decision": "first", "eps": 0.6, "anchors": 1},
+    {"task": 1, "subspace": "high", "decision": "prune", "eps": 0.1, "anchors": 1},
+    {"task": 1, "subspace": "low", "decision": "keep", "eps": 0.6, "anchors": 2},
+]
+
+
+def test_hparams_hold_the_settings_a_user_chose_by_name():
+    assert chosen_hparams(FINGERPRINT, DECISIONS) == {
+        "method": "HiSPO",
+        "stream": "pointmaze-umaze-N[500] -> pointmaze-umaze-PA[500]",
+        "seed": 3,
+        "steps_per_task": 3000,
+        "batch_size": 1024,
+        "lr": 0.001,
+        "episodes": 100,
+        "high_hidden": 64,
+        "low_hidden": 256,
+        "eps_high": 0.1,  # the tolerance applied, where the setting says None (family default)
+        "eps_low": 0.6,
+    }
+    zero_shot = [{"task": 1, "subspace": "low", "decision": "zero-shot", "eps": {"low": 1.0}}]
+    assert "eps_low" not in chosen_hparams(FINGERPRINT, zero_shot)
+
+
+def test_custom_scalars_put_each_family_of_curves_in_one_chart():
+    import re
+
+    layout = custom_scalars_layout(["high", "low"])
+    charts = {title: tags for category in layout.values() for title, (_, tags) in category.items()}
+    logged = [
+        "stream/success/T01",
+        "stream/success/T02",
+        "stream/success/mean_seen",
+        "stream/PER",
+        "anchors/high/count",
+        "anchors/low/count",
+        "search/high/L_prev",
+        "search/high/L_curr",
+        "search/high/L_curr_x_1_plus_eps",
+        "search/low/L_prev",
+        "search/low/L_curr_x_1_plus_eps",
+        "task_01/search/high/l_prev",
+    ]
+
+    def matched(title_start: str) -> list[str]:
+        title = next(t for t in charts if t.startswith(title_start))
+        return [tag for tag in logged if any(re.search(rx, tag) for rx in charts[title])]
+
+    assert matched("success on each task") == ["stream/success/T01", "stream/success/T02"]
+    assert matched("anchors per subspace") == ["anchors/high/count", "anchors/low/count"]
+    assert matched("high:") == ["search/high/L_prev", "search/high/L_curr_x_1_plus_eps"]
+    assert matched("low:") == ["search/low/L_prev", "search/low/L_curr_x_1_plus_eps"]
+    assert "pruning rule" not in custom_scalars_layout([])  # a method without decisions
+
+
+def test_anchor_counts_as_a_table():
+    assert anchors_markdown(DECISIONS).splitlines() == [
+        "| after | high | low |",
+        "|---|---:|---:|",
+        "| T01 | 1 (first) | 1 (first) |",
+        "| T02 | 1 (prune) | 2 (keep) |",
+    ]

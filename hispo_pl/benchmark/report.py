@@ -29,34 +29,14 @@ def plot_perf_vs_memory(rows: Sequence[MethodRow], path: Path, stream: str = "")
     """The paper's Figure 2: MEM on x, PER on y, one marker per method with error bars over
     seeds. Returns False (after a printed note) when matplotlib is not installed."""
     try:
-        from matplotlib.figure import Figure  # no pyplot: no global backend state
+        from ..figures import perf_vs_memory_figure  # matplotlib, without pyplot
     except ImportError:
         print(
             "[benchmark] matplotlib is not installed: no perf_vs_memory.png (pip install "
             "matplotlib, or the dev extra); the tables are written"
         )
         return False
-    fig = Figure(figsize=(6.0, 4.5))
-    ax = fig.add_subplot()
-    markers = "osD^vP*Xh<>p"
-    for i, row in enumerate(r for r in rows if r.MEM is not None):
-        (x, xs), (y, ys) = row.MEM, row.PER
-        ax.errorbar(
-            x,
-            100 * y,
-            xerr=xs,
-            yerr=100 * ys,
-            fmt=markers[i % len(markers)],
-            capsize=3,
-            label=row.method,
-        )
-        ax.annotate(row.method, (x, 100 * y), textcoords="offset points", xytext=(5, 5), fontsize=8)
-    ax.set_xlabel("MEM (stored size / one single-task model)")
-    ax.set_ylabel("PER (success %, mean ± std over seeds)")
-    ax.set_title(f"Performance vs memory{': ' + stream if stream else ''}")
-    ax.grid(alpha=0.3)
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=8, loc="best")
+    fig = perf_vs_memory_figure(rows, stream)
     fig.savefig(path, dpi=150, bbox_inches="tight")
     return True
 
@@ -69,14 +49,16 @@ def plot_success_matrices(records: Sequence[RunRecord], out: Path) -> list[Path]
     except ImportError:
         return []
     by_method: dict[str, list[np.ndarray]] = {}
+    tasks: dict[str, list[str]] = {}
     for record in records:
         by_method.setdefault(record.method, []).append(results_matrix(record.results))
+        tasks.setdefault(record.method, list(record.results["stream"]))
     written = []
     for method, matrices in sorted(by_method.items()):
         if len({m.shape for m in matrices}) != 1:
             continue  # seeds of different streams: no mean to show
         mean = np.mean(matrices, axis=0)
-        fig = success_matrix_figure(mean.tolist())
+        fig = success_matrix_figure(mean.tolist(), tasks[method])
         fig.axes[0].set_title(f"{method}: R, mean of {len(matrices)} seed(s)", fontsize=9)
         path = out / f"success_{method}.png"
         fig.savefig(path, dpi=110, bbox_inches="tight")
