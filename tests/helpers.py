@@ -233,3 +233,9 @@ def benchmark_config_dir(tmp_path: Path, methods: list[str]) -> Path:
     for m in methods:
         shutil.copy(ROOT / "configs/methods/hispo.yaml", configs / "methods" / f"{m}.yaml")
     return configs
+
+
+def error_lines(err: str) -> list[str]:
+    """What a command wrote to stderr apart from its progress lines (``[hispo-pl] ...``):
+    the lines a user error must fit in one of."""
+    return [line for line in err.splitlines() if not line.startswith("[hispo-pl] ")]

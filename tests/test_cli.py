@@ -18,7 +18,7 @@ DEMO = ROOT / "configs" / "demo.yaml"  # a two-task stream, combined with a meth
 CONFIGS = sorted(
     p
     for p in (ROOT / "configs").rglob("*.yaml")
-    if p.parent.name not in ("streams", "methods") and p != DEMO
+    if p.parent.name not in ("streams", "methods", "grids") and p != DEMO
 )
 STREAM_CONFIGS = sorted((ROOT / "configs/streams").glob("*.yaml"))
 METHOD_CONFIGS = sorted((ROOT / "configs/methods").glob("*.yaml"))

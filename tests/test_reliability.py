@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from helpers import tiny_stream_args
+from helpers import error_lines, tiny_stream_args
 from probes import SLOW_STEPS, TINY_HISPO, cli_source, spawn, stream_dir, wait_for
 
 from hispo_pl.cli import main
@@ -327,7 +327,7 @@ def test_a_non_finite_search_loss_stops_the_task(tiny_umaze, tmp_path, monkeypat
     assert main(tiny_stream_args("hispo", tmp_path, ["pointmaze-umaze-N[3]"])) == 2
     err = capsys.readouterr().err.strip()
     assert "the search at the end of task 1 scored L_curr = nan" in err
-    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert len(error_lines(err)) == 1 and "Traceback" not in err
     run_dir = stream_dir(tmp_path)
     assert not list(run_dir.glob("*.ckpt")) and not (run_dir / "results.json").exists()
     decisions = run_dir / "decisions.jsonl"
@@ -658,7 +658,7 @@ def test_a_full_disk_names_the_file_and_leaves_no_truncated_checkpoint(
     err = capsys.readouterr().err.strip()
     run_dir = stream_dir(small_disk / "runs")
     assert f"cannot use {run_dir / 'task_01.ckpt'}: no space is left" in err, err
-    assert "rerun the same command to resume" in err and len(err.splitlines()) == 1
+    assert "rerun the same command to resume" in err and len(error_lines(err)) == 1
     assert not list(run_dir.glob("*.ckpt")) and not list(run_dir.glob(".*tmp"))
     assert json.loads((run_dir / "progress.json").read_text())["rows"] == []
 

@@ -29,6 +29,8 @@ def plot_perf_vs_memory(rows: Sequence[MethodRow], path: Path, stream: str = "")
     """The paper's Figure 2: MEM on x, PER on y, one marker per method with error bars over
     seeds. Returns False (after a printed note) when matplotlib is not installed."""
     try:
+        import matplotlib.figure  # noqa: F401  (checked here: figures may be imported already)
+
         from ..figures import perf_vs_memory_figure  # matplotlib, without pyplot
     except ImportError:
         print(
