@@ -221,11 +221,13 @@ class GoalConditionedBC(L.LightningModule):
         (default: the current task); ``velocity`` is the goal-space velocity, which PointMaze's
         policies read (``low_velocity``) and others ignore, so passing it always works.
 
-        Example (any method's checkpoint: its class is stored in the file)::
+        Example: any method's checkpoint reads back as a policy with
+        ``GoalConditionedBC.from_checkpoint_file("runs/demo/seed0/task_02.ckpt")`` (its class
+        is stored in the file); an untrained one acts the same way::
 
             >>> import torch
-            >>> from hispo_pl.modules import GoalConditionedBC
-            >>> policy = GoalConditionedBC.from_checkpoint_file("runs/demo/seed0/task_02.ckpt")
+            >>> from hispo_pl.modules import HBC
+            >>> policy = HBC(obs_dim=4, action_dim=2)
             >>> obs, pos, goal = torch.zeros(1, 4), torch.zeros(1, 2), torch.ones(1, 2)
             >>> policy.act(obs, pos, goal, task=1, velocity=torch.zeros(1, 2)).shape
             torch.Size([1, 2])
