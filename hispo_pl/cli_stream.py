@@ -12,7 +12,7 @@ from .run_checks import plain_config, run_fingerprint
 from .rundir import read_results_file, task_label
 
 if TYPE_CHECKING:
-    from .cli import HispoCLI
+    from lightning.pytorch.cli import LightningCLI
 
 
 def stream_run_dir(logger, root: str, stream, seed) -> Path:
@@ -47,7 +47,7 @@ def scratch_diagonal(path: Path, n_tasks: int) -> list[float]:
     return [R[k][k] for k in range(n_tasks)]
 
 
-def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
+def run_stream_from_cli(cli: LightningCLI, model, datamodule) -> dict:
     """Build the ContinualLoop from the parsed config: per-task datamodules share the data
     settings, per-task Trainers share the callbacks and the stream's logger."""
     from lightning.pytorch.callbacks import ModelCheckpoint, ModelSummary, ProgressBar
