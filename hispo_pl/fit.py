@@ -137,7 +137,7 @@ class HispoCLI(LightningCLI):
     def fit(self, model, datamodule, **kwargs) -> None:
         """One task: ``trainer.fit``. A stream: the ContinualLoop, a fresh Trainer per task."""
         refuse_unseen_variants(model, datamodule)
-        if datamodule.stream is None:
+        if not datamodule.tasks:
             from .console import task_progress
             from .loop import fit_interruptibly
 
@@ -152,7 +152,7 @@ class HispoCLI(LightningCLI):
         self.stream_results = run_stream_from_cli(self, model, datamodule)
 
     def after_fit(self) -> None:
-        if self.datamodule.stream is not None:
+        if self.datamodule.tasks:
             print_stream_results(self.stream_results)
             return
         record = self.model.task_record

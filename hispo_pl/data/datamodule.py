@@ -63,7 +63,9 @@ class TaskDataModule(L.LightningDataModule):
 
     Args:
         task: task spec, e.g. ``pointmaze-umaze-N[500]`` (variant applied to the data);
-            default: the stream's first task, else ``pointmaze-umaze-N[500]``.
+            default: the stream's first task, else ``pointmaze-umaze-N[500]``. From Python, a
+            :class:`~hispo_pl.tasks.Task` too (as ``stream``'s entries), which is not parsed
+            again.
         dataset: a Minari id to read instead of our local data for the task's maze, e.g.
             ``D4RL/pointmaze/umaze-v2`` (downloaded when online); a single-maze run only.
         datasets: a Minari id per maze of a stream, e.g.
