@@ -3,6 +3,7 @@ LightningCLI's parsed configuration, with its run directory, per-task Trainers a
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -10,9 +11,10 @@ from .data.datamodule import TaskDataModule
 from .errors import ConfigError, RunDirError
 from .run_checks import plain_config, run_fingerprint
 from .rundir import read_results_file, task_label
+from .tasks import Task
 
 if TYPE_CHECKING:
-    from .cli import HispoCLI
+    from lightning.pytorch.cli import LightningCLI
 
 
 def stream_run_dir(logger, root: str, stream, seed) -> Path:
@@ -47,7 +49,21 @@ def scratch_diagonal(path: Path, n_tasks: int) -> list[float]:
     return [R[k][k] for k in range(n_tasks)]
 
 
-def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
+def task_datamodules(
+    datamodule: TaskDataModule, data_args: dict
+) -> Callable[[str | Task], TaskDataModule]:
+    """The loop's ``make_datamodule``: each task's datamodule with the stream's data settings
+    and its tasks as ``datamodule`` parsed them, so that no spec is parsed again."""
+    parsed = {task.spec: task for task in datamodule.tasks}
+
+    def make_datamodule(task: str | Task) -> TaskDataModule:
+        task = parsed.get(task, task) if isinstance(task, str) else task
+        return TaskDataModule(**{**data_args, "task": task, "stream": datamodule.tasks})
+
+    return make_datamodule
+
+
+def run_stream_from_cli(cli: LightningCLI, model, datamodule) -> dict:
     """Build the ContinualLoop from the parsed config: per-task datamodules share the data
     settings, per-task Trainers share the callbacks and the stream's logger."""
     from lightning.pytorch.callbacks import ModelCheckpoint, ModelSummary, ProgressBar
@@ -66,9 +82,6 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
         cli.trainer.logger, cli.trainer.default_root_dir, config["data"]["stream"], seed
     )
 
-    def make_datamodule(task: str) -> TaskDataModule:
-        return TaskDataModule(**{**data_args, "task": task, "stream": datamodule.stream})
-
     first_trainer = [True]
 
     def make_trainer(k: int):
@@ -79,7 +92,7 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
         extra: dict = {} if first_trainer[0] else {"enable_model_summary": False}
         first_trainer[0] = False
         max_steps = config["trainer"].get("max_steps") or 0
-        label = f"task {task_label(k)}/{len(datamodule.stream)}"
+        label = f"task {task_label(k)}/{len(datamodule.tasks)}"
         bar = config["trainer"].get("enable_progress_bar") is not False
         task_callbacks = task_progress(callbacks, label, max_steps, bar)
         if not any(isinstance(cb, ProgressBar) for cb in task_callbacks):
@@ -91,15 +104,16 @@ def run_stream_from_cli(cli: HispoCLI, model, datamodule) -> dict:
             **extra,
         )
 
+    make_datamodule = task_datamodules(datamodule, data_args)
     reference = module_bytes(model.reference_model())  # MEM's unit: one single-task model
     scratch = None
     if config.get("scratch_results"):
-        scratch = scratch_diagonal(Path(config["scratch_results"]), len(datamodule.stream))
+        scratch = scratch_diagonal(Path(config["scratch_results"]), len(datamodule.tasks))
     import yaml
 
     plain = plain_config({k: v for k, v in config.as_dict().items() if k != "config"})
     loop = ContinualLoop(
-        datamodule.stream,
+        datamodule.tasks,
         model,
         make_datamodule,
         make_trainer,

@@ -109,9 +109,7 @@ def dataset_paths(task: str | Task, episodes: int) -> list[np.ndarray]:
     from .data.datasets import load_episodes
 
     task = parse_task(task)
-    arrays = load_episodes(
-        replace(task, episodes=min(episodes, task.episodes)), generate_if_missing=False
-    )
+    arrays = load_episodes(replace(task, episodes=min(episodes, task.episodes)))
     ends = np.unique(arrays.episode_end)
     starts = np.concatenate([[0], ends[:-1] + 1])
     return [arrays.positions[s : e + 1] for s, e in zip(starts, ends, strict=True)]

@@ -32,7 +32,7 @@ def tiny_umaze(minari_home):
 
     assert os.environ["MINARI_DATASETS_PATH"] == str(minari_home)
     generate_dataset("pointmaze-umaze", episodes=TINY_EPISODES, progress=False)
-    return load_episodes(f"pointmaze-umaze-N[{TINY_EPISODES}]", generate_if_missing=False)
+    return load_episodes(f"pointmaze-umaze-N[{TINY_EPISODES}]")
 
 
 @pytest.fixture(scope="session", autouse=True)

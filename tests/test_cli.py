@@ -255,7 +255,7 @@ def test_stream_help_names_every_stream(capsys):
 
 
 def _instantiated(args: list[str]):
-    from hispo_pl.cli import run_lightning_cli
+    from hispo_pl.fit import run_lightning_cli
 
     return run_lightning_cli(args, run=False)
 

@@ -268,3 +268,31 @@ def test_a_stream_on_our_data_records_it_too(tiny_run):
     results, _ = tiny_run
     local = {"dataset": "hispo/pointmaze-umaze-expert-v0", "episodes": 3}
     assert results["datasets"] == [local, local]
+
+
+def test_each_tasks_datamodule_takes_the_parsed_tasks(monkeypatch):
+    """A stream is parsed once: the loop's per-task datamodules get the tasks the command's
+    datamodule parsed, with its data settings, and parse no spec again."""
+    from hispo_pl import tasks
+    from hispo_pl.cli_stream import task_datamodules
+    from hispo_pl.data import datamodule as datamodule_module
+    from hispo_pl.data.datamodule import TaskDataModule
+
+    first = TaskDataModule(stream=STREAM, batch_size=64, holdout=0.0)
+    parsed: list[str] = []
+    real = tasks.parse_task
+
+    def counting(spec):
+        if isinstance(spec, str):
+            parsed.append(spec)
+        return real(spec)
+
+    monkeypatch.setattr(tasks, "parse_task", counting)
+    monkeypatch.setattr(datamodule_module, "parse_task", counting)
+    make = task_datamodules(first, {"batch_size": 64, "holdout": 0.0, "stream": STREAM})
+    made = [make(task.spec) for task in first.tasks]  # the loop hands over specs
+    assert parsed == []
+    assert [dm.task for dm in made] == first.tasks
+    for dm in made:
+        assert dm.tasks == first.tasks and dm.stream == STREAM
+        assert (dm.batch_size, dm.holdout) == (64, 0.0)

@@ -10,6 +10,7 @@ import pytest
 from helpers import own_minari_dataset
 
 from hispo_pl.data import generation
+from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.data.datasets import (
     DatasetNotFoundError,
     EpisodeArrays,
@@ -119,7 +120,7 @@ def test_episode_arrays_invariants(tiny_umaze):
 def test_load_episodes_takes_the_first_k_episodes(tiny_umaze):
     rows = UMAZE_STEPS + 1
     for k in (1, 2, TINY_EPISODES - 1):
-        head = load_episodes(f"pointmaze-umaze-N[{k}]", generate_if_missing=False)
+        head = load_episodes(f"pointmaze-umaze-N[{k}]")
         assert isinstance(head, EpisodeArrays)
         assert head.n_episodes == k
         assert len(head.observations) == len(head.positions) == len(head.actions) == k * rows
@@ -133,7 +134,7 @@ def test_load_episodes_takes_the_first_k_episodes(tiny_umaze):
 
 def test_asking_for_more_episodes_than_stored_says_how_to_regenerate(tiny_umaze):
     with pytest.raises(DatasetNotFoundError) as err:
-        load_episodes(f"pointmaze-umaze-N[{TINY_EPISODES + 1}]", generate_if_missing=False)
+        load_episodes(f"pointmaze-umaze-N[{TINY_EPISODES + 1}]")
     msg = str(err.value)
     assert f"holds {TINY_EPISODES}" in msg
     assert (
@@ -142,7 +143,7 @@ def test_asking_for_more_episodes_than_stored_says_how_to_regenerate(tiny_umaze)
 
 
 def test_load_episodes_takes_spec_size_without_variant(tiny_umaze):
-    data = load_episodes("pointmaze-umaze-IO[3]", generate_if_missing=False)
+    data = load_episodes("pointmaze-umaze-IO[3]")
     assert data.n_episodes == 3
     # variants are not applied at load time: the stored normal-variant data comes back
     np.testing.assert_array_equal(
@@ -173,35 +174,55 @@ def test_remote_id_offline_raises_with_generate_hint(monkeypatch, minari_home):
     assert isinstance(info.value, FileNotFoundError)
 
 
-def test_missing_local_dataset_without_generation_raises(monkeypatch):
+def test_the_reader_never_generates_a_missing_local_dataset(monkeypatch):
     def no_generation(*args, **kwargs):
         raise AssertionError("must not generate")
 
     monkeypatch.setattr(generation, "generate_dataset", no_generation)
     with pytest.raises(DatasetNotFoundError) as info:
-        load_episodes("pointmaze-large-PO[10]", generate_if_missing=False)
+        load_episodes("pointmaze-large-PO[10]")
     message = str(info.value)
     assert "hispo-pl data generate pointmaze-large" in message
     assert "hispo/pointmaze-large-expert-v0" in message
     assert not dataset_exists("hispo/pointmaze-large-expert-v0")
 
 
-def test_missing_local_dataset_is_generated_on_first_use(monkeypatch, tmp_path):
+def _small_generation(monkeypatch, tmp_path) -> list[tuple[str, int]]:
+    """Generation in ``tmp_path`` cut to 3 episodes (the default, 500, is too slow for a unit
+    test); returns the (maze, episodes asked) list it fills."""
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
     asked = []
     real = generation.generate_dataset
 
-    def small(name, **kwargs):  # the default (500 episodes) is too slow for a unit test
-        asked.append(name)
+    def small(name, episodes=None, **kwargs):
+        asked.append((name, episodes))
         return real(name, episodes=3, progress=False)
 
     monkeypatch.setattr(generation, "generate_dataset", small)
-    data = load_episodes("pointmaze-umaze-PA[2]")
-    assert asked == ["pointmaze-umaze"]
-    assert data.n_episodes == 2
+    return asked
+
+
+def test_a_fit_generates_its_missing_local_dataset_on_first_use(monkeypatch, tmp_path):
+    asked = _small_generation(monkeypatch, tmp_path)
+    datamodule = TaskDataModule(task="pointmaze-umaze-PA[2]", holdout=0.0)
+    datamodule.prepare_data()
+    assert asked == [("pointmaze-umaze", 500)]  # the maze's default, not the task's 2
+    assert datamodule.dataset_use.episodes == 2
+    assert load_episodes("pointmaze-umaze-PA[2]").n_episodes == 2
     assert dataset_exists(UMAZE_ID)
     assert minari.list_local_datasets()[UMAZE_ID]["total_episodes"] == 3
     assert dataset_path(UMAZE_ID).is_relative_to(tmp_path)
+    datamodule.prepare_data()  # stored now: not made again
+    assert asked == [("pointmaze-umaze", 500)]
+
+
+def test_generate_missing_leaves_stored_data_and_minari_ids_alone(monkeypatch, tmp_path):
+    asked = _small_generation(monkeypatch, tmp_path)
+    generation.generate_missing("D4RL/pointmaze/umaze-v2")  # the reader downloads those
+    assert asked == []
+    generation.generate_missing("pointmaze-umaze-N[700]")
+    generation.generate_missing("pointmaze-umaze-IO[2]")
+    assert asked == [("pointmaze-umaze", 700)]  # more than the default: the task's count
 
 
 # --- generation: reuse and resumability --------------------------------------------------
@@ -214,7 +235,6 @@ def _arrays(dataset_id: str) -> EpisodeArrays:
 def test_a_task_reads_its_episodes_once(tiny_umaze, monkeypatch):
     """``prepare_data`` only makes sure the dataset exists; ``setup`` reads the episodes."""
     from hispo_pl.data import datasets
-    from hispo_pl.data.datamodule import TaskDataModule
 
     reads = []
     real = datasets.episodes_to_arrays
@@ -367,7 +387,6 @@ def test_goal_stats_edge_cases():
 
 
 def test_one_dataset_for_a_multi_maze_stream_is_refused():
-    from hispo_pl.data.datamodule import TaskDataModule
     from hispo_pl.errors import ConfigError
 
     with pytest.raises(ConfigError, match="--data.datasets"):
@@ -379,7 +398,6 @@ def test_one_dataset_for_a_multi_maze_stream_is_refused():
 
 
 def test_each_maze_reads_the_dataset_named_for_it(tiny_umaze):
-    from hispo_pl.data.datamodule import TaskDataModule
     from hispo_pl.tasks import parse_task
 
     dm = TaskDataModule(stream="pointmaze-1", datasets={"pointmaze-medium": "elsewhere/medium-v0"})
@@ -417,7 +435,6 @@ def test_a_dataset_name_is_a_task_spec_or_a_minari_id():
 
 
 def test_a_minari_id_without_a_namespace_trains_a_task(minari_home):
-    from hispo_pl.data.datamodule import TaskDataModule
     from hispo_pl.data.datasets import DatasetUse
 
     own_minari_dataset("umaze-v0", episodes=4)
@@ -432,7 +449,6 @@ def test_a_minari_id_without_a_namespace_trains_a_task(minari_home):
 
 
 def test_a_name_that_is_neither_is_refused_when_configured():
-    from hispo_pl.data.datamodule import TaskDataModule
     from hispo_pl.data.datasets import DataSourceError
 
     with pytest.raises(DataSourceError, match="umaze-v0, mydata/umaze-v0"):
@@ -440,7 +456,6 @@ def test_a_name_that_is_neither_is_refused_when_configured():
 
 
 def test_our_own_data_is_described_by_its_spec(tiny_umaze):
-    from hispo_pl.data.datamodule import TaskDataModule
     from hispo_pl.data.datasets import DatasetUse
 
     dm = TaskDataModule(task="pointmaze-umaze-PO[3]", holdout=0.0)
@@ -460,7 +475,6 @@ def test_episodes_without_the_keys_training_reads_are_refused(minari_home):
 
 
 def test_a_dataset_of_other_sizes_than_the_family_s_is_refused(minari_home):
-    from hispo_pl.data.datamodule import TaskDataModule
     from hispo_pl.errors import ConfigError
 
     own_minari_dataset("wide/umaze-v0", obs_dim=6)

@@ -195,7 +195,7 @@ def test_a_checkpoint_callback_in_a_stream_is_refused_with_the_reason(capsys):
 def test_a_checkpoint_callback_of_a_single_task_is_kept():
     from lightning.pytorch.callbacks import ModelCheckpoint
 
-    from hispo_pl.cli import run_lightning_cli
+    from hispo_pl.fit import run_lightning_cli
 
     config = str(ROOT / "configs/hbc/pointmaze-umaze.yaml")
     cli = run_lightning_cli(["--config", config, "--trainer.callbacks+=ModelCheckpoint"], run=False)

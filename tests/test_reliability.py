@@ -52,7 +52,7 @@ minari.create_dataset_from_buffers = _create_then_hang
     assert '"id"' not in capsys.readouterr().out  # nothing listed as if it were whole
     assert main(["data", "generate", "pointmaze-umaze", "--episodes", "2"]) == 0
     assert json.loads(capsys.readouterr().out)["episodes"] == 2
-    assert load_episodes("pointmaze-umaze-N[2]", generate_if_missing=False).n_episodes == 2
+    assert load_episodes("pointmaze-umaze-N[2]").n_episodes == 2
     assert not list((tmp_path / ".staging").glob("*")), "staging left behind"
 
 
@@ -77,7 +77,7 @@ minari.create_dataset_from_buffers = _hang
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     assert dataset_problem("hispo/pointmaze-umaze-expert-v0") is None
-    assert load_episodes("pointmaze-umaze-N[2]", generate_if_missing=False).n_episodes == 2
+    assert load_episodes("pointmaze-umaze-N[2]").n_episodes == 2
     assert main(["data", "generate", *argv[2:]]) == 0  # the rerun finishes the new one
     assert json.loads(capsys.readouterr().out)["episodes"] == 3
     assert not list((tmp_path / ".staging").glob("*")), "staging left behind"
@@ -306,7 +306,7 @@ def test_non_finite_data_is_refused_when_it_loads(tmp_path, monkeypatch, capsys)
     with h5py.File(dataset_path(dataset_id) / "data" / "main_data.hdf5", "r+") as f:
         f["episode_1/observations/observation"][7, 2] = np.nan
     with pytest.raises(DatasetValuesError, match=r"episode 1 holds 1 NaN .* in observation"):
-        load_episodes("pointmaze-umaze-N[3]", generate_if_missing=False)
+        load_episodes("pointmaze-umaze-N[3]")
     assert main(tiny_stream_args("hispo", tmp_path / "runs", ["pointmaze-umaze-N[3]"])) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("hispo-pl: error: the data of hispo/pointmaze-umaze-expert-v0")
@@ -715,7 +715,7 @@ def test_two_processes_that_need_one_dataset_build_it_once(tmp_path, monkeypatch
     for proc, (out, err) in zip(procs, outcomes, strict=True):
         assert proc.returncode == 0, err[-2000:]
         assert json.loads(out[out.index("{") :])["episodes"] == 4
-    assert load_episodes("pointmaze-umaze-N[4]", generate_if_missing=False).n_episodes == 4
+    assert load_episodes("pointmaze-umaze-N[4]").n_episodes == 4
     assert not list((tmp_path / ".staging").glob("*")), "staging left behind"
 
 

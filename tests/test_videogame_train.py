@@ -22,7 +22,7 @@ EPISODES = 4
 def town_data(minari_home):
     for maze in ("OXO", "BASE"):
         generate_dataset(f"simpletown-{maze}", episodes=EPISODES, progress=False)
-    return load_episodes(f"simpletown-OXO[{EPISODES}]", generate_if_missing=False)
+    return load_episodes(f"simpletown-OXO[{EPISODES}]")
 
 
 def test_planner_dataset(town_data):

@@ -170,7 +170,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         extra,
     )
     if args.dry_run:
-        from ..cli import check_fit_args
+        from ..fit import check_fit_args
 
         problems = 0
         checked: dict[str, str | None] = {}

@@ -1,4 +1,4 @@
-"""LightningDataModule for one task: load (or generate) its expert data, serve HER batches."""
+"""LightningDataModule for one task: its expert data (generated when missing), HER batches."""
 
 from __future__ import annotations
 
@@ -27,6 +27,7 @@ from .datasets import (
     load_episodes,
     open_dataset,
 )
+from .generation import generate_missing
 from .sampler import HERConfig, HERSampler, Horizon, MixedSampler, Strategy
 
 
@@ -62,7 +63,9 @@ class TaskDataModule(L.LightningDataModule):
 
     Args:
         task: task spec, e.g. ``pointmaze-umaze-N[500]`` (variant applied to the data);
-            default: the stream's first task, else ``pointmaze-umaze-N[500]``.
+            default: the stream's first task, else ``pointmaze-umaze-N[500]``. From Python, a
+            :class:`~hispo_pl.tasks.Task` too (as ``stream``'s entries), which is not parsed
+            again.
         dataset: a Minari id to read instead of our local data for the task's maze, e.g.
             ``D4RL/pointmaze/umaze-v2`` (downloaded when online); a single-maze run only.
         datasets: a Minari id per maze of a stream, e.g.
@@ -268,7 +271,11 @@ class TaskDataModule(L.LightningDataModule):
         return self.datasets.get(task.dataset_name) or self.dataset or task
 
     def prepare_data(self) -> None:
-        ds, episodes = open_dataset(self.dataset_for(self.task))  # makes our local data if missing
+        """Make our local data of the task (and, with ``replay``, of the earlier ones) if they
+        are missing, then open the task's dataset."""
+        for task in [self.task, *(self.earlier_tasks() if self.replay else [])]:
+            generate_missing(self.dataset_for(task))
+        ds, episodes = open_dataset(self.dataset_for(self.task))
         count = ds.total_episodes if episodes is None else len(episodes)
         self.dataset_use = DatasetUse(ds.spec.dataset_id, count)
 

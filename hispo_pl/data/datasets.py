@@ -1,4 +1,5 @@
-"""Expert datasets as real Minari datasets: generated locally by our experts, or D4RL ids.
+"""Expert datasets as real Minari datasets: generated locally by our experts
+(:mod:`hispo_pl.data.generation` writes them), or D4RL ids. This module only reads.
 
 Datasets are stored once per maze, in the normal variant; a task's variant is applied to the
 arrays at load time by the same pure transforms the env wrapper uses.
@@ -270,20 +271,25 @@ def episodes_to_arrays(episodes, dataset: str = "the dataset") -> EpisodeArrays:
     return EpisodeArrays(*(np.concatenate(x) for x in (obs, pos, act, end, idx, seg)))
 
 
-def load_episodes(source: str | Task, *, generate_if_missing: bool = True) -> EpisodeArrays:
-    """Episodes of a task's maze (our local dataset, generated on first use) or of any Minari id.
+def load_episodes(source: str | Task) -> EpisodeArrays:
+    """Episodes of a task's maze (our local dataset) or of any Minari id.
 
     ``source`` is a task (spec), or a Minari id such as ``D4RL/pointmaze/umaze-v2`` which is
     downloaded when online. Variants are not applied here: see :meth:`EpisodeArrays.for_task`.
     """
-    ds, episodes = open_dataset(source, generate_if_missing=generate_if_missing)
+    ds, episodes = open_dataset(source)
     return episodes_to_arrays(ds.iterate_episodes(episodes), ds.spec.dataset_id)
 
 
-def open_dataset(source: str | Task, *, generate_if_missing: bool = True):
-    """The Minari dataset of ``source`` (see :func:`load_episodes`), made or downloaded if
-    missing, and the episode indices a task reads (``None``: all), without reading any episode:
-    what a data module's ``prepare_data`` needs."""
+def open_dataset(source: str | Task):
+    """The Minari dataset of ``source`` (see :func:`load_episodes`), downloaded if it is a
+    missing Minari id, and the episode indices a task reads (``None``: all), without reading
+    any episode: what a data module's ``prepare_data`` needs. Our local data are only read
+    here; :func:`~hispo_pl.data.generation.generate_missing` makes them.
+
+    Raises:
+        DatasetNotFoundError: our local dataset is missing or too small (naming the command
+            that makes it), or a Minari id is neither stored nor downloadable."""
     import minari
 
     source = dataset_source(source)
@@ -291,14 +297,10 @@ def open_dataset(source: str | Task, *, generate_if_missing: bool = True):
         task = source
         dataset_id = local_dataset_id(task.dataset_name)
         if not dataset_exists(dataset_id):
-            if not generate_if_missing:
-                raise DatasetNotFoundError(
-                    f"dataset {dataset_id} not found under {dataset_path('')}; create it with\n"
-                    f"  hispo-pl data generate {task.dataset_name}"
-                )
-            from .generation import generate_dataset
-
-            generate_dataset(task.dataset_name, episodes=max(task.episodes, default_episodes(task)))
+            raise DatasetNotFoundError(
+                f"dataset {dataset_id} not found under {dataset_path('')}; create it with\n"
+                f"  hispo-pl data generate {task.dataset_name}"
+            )
         ds = minari.load_dataset(dataset_id)
         if ds.total_episodes < task.episodes:
             raise DatasetNotFoundError(

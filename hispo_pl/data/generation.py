@@ -20,8 +20,10 @@ from ..progress import Progress
 from ..tasks import Task, parse_task
 from .datasets import (
     NAMESPACE,
+    dataset_exists,
     dataset_path,
     dataset_problem,
+    dataset_source,
     default_episodes,
     local_dataset_id,
 )
@@ -150,6 +152,17 @@ def generate_dataset(
     task = parse_task(name)
     with dataset_lock(task.dataset_name, progress):  # a second process waits, then reuses it
         return _generate(task, episodes, seed, noise, overwrite, progress, expert_weights)
+
+
+def generate_missing(source: str | Task) -> None:
+    """Make our local dataset of ``source``'s maze (a task or its spec) when it is not stored
+    complete, with the episodes the task reads or the maze's default, whichever is more: what
+    a fit does before it reads a task's data. A Minari id is left to the reader, which
+    downloads it."""
+    source = dataset_source(source)
+    if isinstance(source, Task) and not dataset_exists(local_dataset_id(source.dataset_name)):
+        episodes = max(source.episodes, default_episodes(source))
+        generate_dataset(source.dataset_name, episodes=episodes)
 
 
 @contextlib.contextmanager

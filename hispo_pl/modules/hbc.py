@@ -362,10 +362,9 @@ def imported_method(class_path: str) -> type[GoalConditionedBC] | None:
     """The method class ``class_path`` names (``package.module.Name``, as a config or
     LightningCLI's ``_class_path`` spells it), if its module is already imported and the name
     is a :class:`GoalConditionedBC` subclass; else None. Nothing is imported: a checkpoint can
-    only pick among the methods hispo-pl (all of them) or the user's own config loaded."""
+    only pick among the methods hispo-pl (all of them: importing this module runs
+    ``hispo_pl.modules``' ``__init__``, which imports each) or the user's own config loaded."""
     import sys
-
-    from .. import modules  # noqa: F401  (defines every shipped method)
 
     module_name, _, name = class_path.rpartition(".")
     found = getattr(sys.modules.get(module_name), name, None) if module_name else None
