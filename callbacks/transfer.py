@@ -16,10 +16,11 @@ from ..nn import eval_mode
 from ..nn.subspace import sample_dirichlet
 from ..search import race_subspace, resolve_precision
 from .protocols import require_subspace_policy
+from .state import KeyedState
 from .subspace import AnchorExtension, log_decisions
 
 
-class ZeroShotTransfer(L.Callback):
+class ZeroShotTransfer(KeyedState):
     """The paper's PAC criterion (section 5.5.3), before a task's subspaces are extended: per
     subspace, the best point of the existing subspace (Dirichlet candidates raced on the new
     task's data, as in :class:`DirichletEvaluation`) is accepted for the new task without a new
@@ -41,6 +42,18 @@ class ZeroShotTransfer(L.Callback):
         n_candidates, n_batches, survivors, probe_samples, precision, seed: the search, as in
             :class:`DirichletEvaluation`.
     """
+
+    # the arguments that tell two instances apart: its checkpoint entry's key
+    state_args = (
+        "eps",
+        "delta",
+        "n_candidates",
+        "n_batches",
+        "survivors",
+        "probe_samples",
+        "precision",
+        "seed",
+    )
 
     def __init__(
         self,
