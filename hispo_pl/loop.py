@@ -3,7 +3,9 @@
 Lightning has no API for several fits in one loop, so the loop is plain Python: one fresh
 Trainer per task, one logger for the stream, and task-granular resume: after a task (and the
 callbacks' task-end decisions) the loop writes ``task_XX.ckpt`` and the row of the success
-matrix R; a rerun of the same command skips finished tasks.
+matrix R; a rerun of the same command skips finished tasks. What makes a stop and a resume
+safe (the run directory's lock, the fingerprint check, the task-in-progress checkpoint) is in
+:mod:`.resume`.
 """
 
 from __future__ import annotations
