@@ -19,6 +19,7 @@ from ..nn import eval_mode
 from ..rundir import task_label
 from ..search import RaceOutcome, race_candidates, race_subspace
 from .protocols import require
+from .state import KeyedState
 from .subspace import apply_decision, check_task_end_order, decide_subspaces
 
 
@@ -48,7 +49,7 @@ class CriticSearchResult:
     diagnostic: dict[str, float] = field(default_factory=dict)
 
 
-class CriticEvaluation(L.Callback):
+class CriticEvaluation(KeyedState):
     """At the end of a task, race Dirichlet candidates of each subspace by the critic's value
     of the mixed policy, ``W(α) = mean_s Q(s, g, π_α(s, g), α)``, on the task's held-out
     episodes (the same batches for every candidate), as
@@ -72,6 +73,16 @@ class CriticEvaluation(L.Callback):
         >>> from hispo_pl.callbacks import AnchorExtension, CriticEvaluation, CriticPruning
         >>> callbacks = [AnchorExtension(), CriticEvaluation(), CriticPruning(eps=0.1)]
     """
+
+    # the arguments that tell two instances apart: its checkpoint entry's key
+    state_args = (
+        "n_candidates",
+        "n_batches",
+        "survivors",
+        "probe_samples",
+        "diagnostic_actions",
+        "seed",
+    )
 
     def __init__(
         self,
@@ -153,7 +164,7 @@ class CriticEvaluation(L.Callback):
         return {k: sum(d[k] for d in per_batch) / len(per_batch) for k in per_batch[0]}
 
 
-class CriticPruning(L.Callback):
+class CriticPruning(KeyedState):
     """At the end of a task, per subspace, CSP's rule: keep the new anchor iff
     ``W(α_new) > (1 + eps) · W(α_old)`` (:func:`hispo_pl.decisions.critic_extends`, which
     also covers negative values) and store ``α_new`` for the task, else prune it and store
@@ -167,6 +178,9 @@ class CriticPruning(L.Callback):
     Args:
         eps: the tolerance ε of the rule.
     """
+
+    # the arguments that tell two instances apart: its checkpoint entry's key
+    state_args = ("eps",)
 
     def __init__(self, eps: float = 0.1):
         if eps < 0:

@@ -12,6 +12,7 @@ from typing_extensions import override
 from ..modules.columns import GrowingPolicy
 from ..modules.regularized import ConsolidatingPolicy
 from .protocols import require
+from .state import KeyedState
 
 
 def _require_growing_policy(pl_module: L.LightningModule, who: str) -> GrowingPolicy:
@@ -24,7 +25,7 @@ def trains_on(task: int, train: Literal["all", "first"]) -> bool:
     return train == "all" or task == 0
 
 
-class TaskNetworks(L.Callback):
+class TaskNetworks(KeyedState):
     """At task start (before the optimiser exists) the module makes the task's network; at
     task end it records the network the task acts with.
 
@@ -32,6 +33,9 @@ class TaskNetworks(L.Callback):
         train: ``all`` tasks, or only the ``first`` (FRZ: later tasks are not trained at all;
             their fit ends before the first step and goes straight to the evaluation).
     """
+
+    # the arguments that tell two instances apart: its checkpoint entry's key
+    state_args = ("train",)
 
     def __init__(self, train: Literal["all", "first"] = "all"):
         if train not in ("all", "first"):
@@ -58,7 +62,7 @@ class TaskNetworks(L.Callback):
         pl_module.finish_task(pl_module.task_index)
 
 
-class WeightConsolidation(L.Callback):
+class WeightConsolidation(KeyedState):
     """At a task's end, the module folds the task's weights into its penalty (L2, EWC); EWC's
     empirical Fisher is measured on ``fisher_batches`` fresh batches of the task.
 
@@ -67,6 +71,9 @@ class WeightConsolidation(L.Callback):
         batch_size: samples per batch (per-sample gradients are taken in chunks of 256).
         seed: seeds those batches.
     """
+
+    # the arguments that tell two instances apart: its checkpoint entry's key
+    state_args = ("fisher_batches", "batch_size", "seed")
 
     def __init__(self, fisher_batches: int = 16, batch_size: int = 256, seed: int = 0):
         if fisher_batches < 1:

@@ -11,9 +11,10 @@ from ..nn import eval_mode
 from ..progress import Progress
 from ..rundir import task_label
 from ..tasks import Task, parse_task
+from .state import KeyedState
 
 
-class RolloutEvaluation(L.Callback):
+class RolloutEvaluation(KeyedState):
     """Evaluates the policy with deterministic, seeded rollouts.
 
     - every ``eval_every`` steps on the current task, logged as ``eval/success`` in % (single task)
@@ -34,6 +35,9 @@ class RolloutEvaluation(L.Callback):
         progress: also show the progress of each periodic evaluation; the one at a task's
             end always shows (:mod:`hispo_pl.progress`: a bar, or a line every tenth).
     """
+
+    # the arguments that tell two instances apart: its checkpoint entry's key
+    state_args = ("eval_every", "episodes", "seed")
 
     def __init__(
         self, eval_every: int = 0, episodes: int = 100, seed: int = 0, progress: bool = False

@@ -20,6 +20,7 @@ from ..progress import Progress
 from ..rundir import RunDir, task_label
 from ..search import RaceOutcome, race_subspace, resolve_precision
 from .protocols import require_subspace_policy
+from .state import KeyedState
 
 
 @dataclass
@@ -67,7 +68,7 @@ def window_start(max_steps: int, window: float) -> int | None:
     return max(max_steps - max(round(window * max_steps), 1), 0)
 
 
-class DirichletEvaluation(L.Callback):
+class DirichletEvaluation(KeyedState):
     """At the end of a task, search the previous anchors of each subspace for the best weights.
 
     ``n_candidates`` Dirichlet(1) draws are raced (:func:`hispo_pl.search.race_candidates`):
@@ -107,6 +108,20 @@ class DirichletEvaluation(L.Callback):
         convergence_window: share of the task's last steps over which the convergence
             diagnostic is measured (0: off).
     """
+
+    # the arguments that tell two instances apart: its checkpoint entry's key
+    state_args = (
+        "n_candidates",
+        "n_batches",
+        "survivors",
+        "probe_samples",
+        "loss",
+        "precision",
+        "seed",
+        "every_n_steps",
+        "refine_current",
+        "convergence_window",
+    )
 
     def __init__(
         self,

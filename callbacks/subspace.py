@@ -21,6 +21,7 @@ from ..tasks import Family
 from .protocols import require_subspace_policy
 from .rollout import RolloutEvaluation
 from .search import DirichletEvaluation, SearchResult
+from .state import KeyedState
 
 
 class AnchorExtension(L.Callback):
@@ -55,7 +56,7 @@ def check_task_end_order(callbacks: list[L.Callback], pruning: L.Callback, searc
         raise ValueError(f"list RolloutEvaluation after {prune}: it must see the pruned policy")
 
 
-class SubspacePruning(L.Callback):
+class SubspacePruning(KeyedState):
     """At the end of a task, per subspace: prune the new anchor iff
     ``L_prev <= (1 + eps) * L_curr`` and store ``alpha_prev`` for the task, else keep it and
     store ``alpha_curr``. Decisions go to TensorBoard (text) and ``decisions.jsonl``.
@@ -72,6 +73,9 @@ class SubspacePruning(L.Callback):
             ``eps_high`` / ``eps_low``. A subspace named nowhere gets the largest tolerance
             given, else the smallest of the family's.
     """
+
+    # the arguments that tell two instances apart: its checkpoint entry's key
+    state_args = ("eps",)
 
     def __init__(
         self,

@@ -16,10 +16,11 @@ from ..nn import eval_mode
 from ..nn.subspace import sample_dirichlet
 from ..search import race_subspace, resolve_precision
 from .protocols import require_subspace_policy
+from .state import KeyedState
 from .subspace import AnchorExtension, log_decisions
 
 
-class ZeroShotTransfer(L.Callback):
+class ZeroShotTransfer(KeyedState):
     """The paper's PAC criterion (section 5.5.3), before a task's subspaces are extended: per
     subspace, the best point of the existing subspace (Dirichlet candidates raced on the new
     task's data, as in :class:`DirichletEvaluation`) is accepted for the new task without a new
@@ -35,12 +36,24 @@ class ZeroShotTransfer(L.Callback):
         eps_high: distance (maze units) the high policy's subgoal may be off.
         eps_low: distance the low policy's action may be off (actions lie in [-1, 1]²; the
             expert data carry Gaussian action noise of std 0.2). The defaults separate a
-            repeated task from a new one in ``benchmarks/pac_calibration.py``
-            (docs/studies/earlier-measurements.md).
+            repeated task from a new one (docs/method.md, measured with
+            ``benchmarks/pac_calibration.py`` at commit 720d51a).
         delta: accepted probability of a larger error.
         n_candidates, n_batches, survivors, probe_samples, precision, seed: the search, as in
             :class:`DirichletEvaluation`.
     """
+
+    # the arguments that tell two instances apart: its checkpoint entry's key
+    state_args = (
+        "eps",
+        "delta",
+        "n_candidates",
+        "n_batches",
+        "survivors",
+        "probe_samples",
+        "precision",
+        "seed",
+    )
 
     def __init__(
         self,

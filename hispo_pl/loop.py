@@ -3,102 +3,33 @@
 Lightning has no API for several fits in one loop, so the loop is plain Python: one fresh
 Trainer per task, one logger for the stream, and task-granular resume: after a task (and the
 callbacks' task-end decisions) the loop writes ``task_XX.ckpt`` and the row of the success
-matrix R; a rerun of the same command skips finished tasks.
+matrix R; a rerun of the same command skips finished tasks. What makes a stop and a resume
+safe (the run directory's lock, the fingerprint check, the task-in-progress checkpoint) is in
+:mod:`.resume`.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import signal
-import socket
-import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import lightning as L
 import numpy as np
-import torch
 
-from .config import upgrade_fingerprint
 from .console import lightning_notices_once, quiet_lightning_notices, say, task_header, task_summary
 from .data.datamodule import TaskDataModule
-from .errors import Interrupted, RunDirError
+from .errors import Interrupted
 from .io import atomic_save
 from .metrics import continual_metrics, memory_ratio, module_bytes, results_row_table
 from .modules.hispo import SubspacePolicy
+from .resume import MissingCheckpointError, RunDirLock, TaskCheckpoint, resume_progress
 from .rundir import RunDir, task_label
 from .stream_report import log_stream_end, log_task_end
 from .tasks import Task, parse_task
-
-
-def _sampler_generators(trainer: L.Trainer) -> list[np.random.Generator]:
-    """The numpy generators that draw the training batches: the HER sampler(s) behind the
-    task datamodule's loader (one per task for a replaying sampler)."""
-    loader = trainer.train_dataloader
-    sampler = getattr(getattr(loader, "dataset", None), "sampler", None)
-    samplers = getattr(sampler, "samplers", [sampler])
-    return [s.rng for s in samplers if isinstance(getattr(s, "rng", None), np.random.Generator)]
-
-
-class TaskCheckpoint(L.Callback):
-    """Saves the task in progress every ``every`` steps to ``path`` (atomically), so a run
-    killed inside a long task resumes from there rather than from the task's start.
-
-    With Lightning's own state (weights, optimiser, schedule, loop counters, callbacks) the
-    file holds the random state a resumed task needs to go on exactly as an uninterrupted one:
-    torch's, numpy's and Python's global generators and the batch sampler's generator, all
-    as plain values (``weights_only=True`` loads it).
-    """
-
-    def __init__(self, path: Path, every: int):
-        self.path, self.every = Path(path), every
-        self._trainer: L.Trainer | None = None
-        self._pending: dict | None = None
-
-    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
-        self._trainer = trainer
-
-    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
-        step = trainer.global_step
-        if self.every > 0 and step % self.every == 0 and 0 < step < trainer.max_steps:
-            # the full training state
-            atomic_save(self.path, lambda tmp: trainer.save_checkpoint(tmp, weights_only=False))
-
-    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        if self._pending is None:
-            return
-        import random
-
-        state, self._pending = self._pending, None
-        torch.set_rng_state(state["torch"])
-        keys = state["numpy"].numpy().astype(np.uint32)
-        np.random.set_state(("MT19937", keys, *state["np_rest"]))
-        random.setstate((state["python"][0], tuple(state["python"][1]), state["python"][2]))
-        generators = _sampler_generators(trainer)
-        if len(generators) != len(state["sampler"]):
-            raise RuntimeError("the resumed task's batch sampler differs from the saved one")
-        for generator, saved in zip(generators, state["sampler"], strict=True):
-            generator.bit_generator.state = saved
-
-    def state_dict(self) -> dict:
-        import random
-
-        kind, keys, pos, has_gauss, cached = np.random.get_state()
-        version, internal, gauss = random.getstate()
-        generators = _sampler_generators(self._trainer) if self._trainer is not None else []
-        return {
-            "torch": torch.get_rng_state(),
-            "numpy": torch.from_numpy(keys.astype(np.int64)),
-            "np_rest": [int(pos), int(has_gauss), float(cached)],
-            "python": [version, list(internal), gauss],
-            "sampler": [g.bit_generator.state for g in generators],
-        }
-
-    def load_state_dict(self, state_dict: dict) -> None:
-        self._pending = state_dict
 
 
 def task_phases(fit_seconds: float, callback_seconds: dict[str, float]) -> dict[str, float]:
@@ -120,71 +51,6 @@ def fit_interruptibly(trainer: L.Trainer, module: L.LightningModule, datamodule,
             raise
         signal.signal(signal.SIGINT, signal.default_int_handler)
         raise KeyboardInterrupt from None
-
-
-def differing_keys(stored: dict, current: dict) -> list[str]:
-    """``key: stored -> current`` for every stored key whose value differs now (or is gone).
-    Keys only ``current`` has are settings a newer hispo-pl added; they do not count, so an
-    upgrade does not lock a run out of its own directory."""
-    missing = object()
-    out = []
-    for key in sorted(stored):
-        a, b = stored.get(key, missing), current.get(key, missing)
-        if a != b:
-            show = lambda v: "(unset)" if v is missing else json.dumps(v)  # noqa: E731
-            out.append(f"{key}: {show(a)} -> {show(b)}")
-    return out
-
-
-class RunDirLock:
-    """An exclusive lock on a run directory for as long as a run uses it (``fcntl.flock`` on
-    ``run.lock``, released by the system even after ``kill -9``). The file names the holder
-    (pid, host, start time, command), so a second run can say who it is waiting for.
-
-    Raises:
-        RunDirError: on enter, when another process holds the lock.
-    """
-
-    def __init__(self, run_dir: RunDir | str | Path):
-        self.path = RunDir.of(run_dir).lock_file
-        self._file = None
-
-    def __enter__(self) -> RunDirLock:
-        try:
-            import fcntl
-        except ImportError:  # not POSIX: no lock
-            return self
-        f = open(self.path, "a+")
-        try:
-            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            f.seek(0)
-            holder = f.read().strip() or "another process"
-            f.close()
-            raise RunDirError(
-                f"{self.path.parent} is in use by another run ({holder}); wait for it to end, "
-                "or give this run another directory (e.g. --trainer.logger.init_args.version)"
-            ) from None
-        f.seek(0)
-        f.truncate()
-        f.write(
-            f"pid {os.getpid()} on {socket.gethostname()}, started "
-            f"{time.strftime('%Y-%m-%d %H:%M:%S')}: {' '.join(sys.argv)}\n"
-        )
-        f.flush()
-        self._file = f
-        return self
-
-    def __exit__(self, *exc) -> None:
-        if self._file is not None:
-            self._file.seek(0)
-            self._file.truncate()
-            self._file.close()  # closing releases the lock
-            self._file = None
-
-
-class MissingCheckpointError(RunDirError, FileNotFoundError):
-    """``progress.json`` lists a finished task whose checkpoint is gone."""
 
 
 class ContinualLoop:
@@ -244,46 +110,6 @@ class ContinualLoop:
 
     # --- progress on disk -------------------------------------------------------------------
 
-    def _load_progress(self) -> dict:
-        fresh = {
-            "stream": self.stream,
-            "rows": [],
-            "wall_time_s": [],
-            "phase_time_s": [],
-            "datasets": [],
-        }
-        if self.fingerprint is not None:
-            fresh["fingerprint"] = self.fingerprint
-        progress = self.run_dir.read_progress()  # a malformed file: RunDirError, named
-        if progress is None:
-            return fresh
-        if progress["stream"] != self.stream:
-            raise RunDirError(
-                f"{self.run_dir} holds a run of stream {progress['stream']}, not {self.stream}; "
-                "choose another run directory (e.g. --trainer.logger.init_args.version)"
-            )
-        stored = progress.get("fingerprint")
-        stored = upgrade_fingerprint(stored) if stored is not None else None
-        differing = differing_keys(stored or {}, self.fingerprint or {})
-        started = progress["rows"] or self.run_dir.partial_checkpoint(0).exists()
-        if differing and not started:  # refused or stopped before its first step: no mixing
-            return fresh
-        if self.fingerprint is not None and stored is not None and differing:
-            diff = "\n  ".join(differing)
-            raise RunDirError(
-                f"{self.run_dir} holds a run with other settings; resuming would mix tasks "
-                f"trained differently. Differing (stored -> now):\n  {diff}\nRerun with the "
-                "stored settings to resume, or give this run another directory (e.g. "
-                "--trainer.logger.init_args.version)"
-            )
-        if self.fingerprint is not None and stored is None:
-            progress["fingerprint"] = self.fingerprint  # a run from before fingerprints
-        # a run from before phase times: its finished tasks have none
-        progress.setdefault("phase_time_s", [None] * len(progress["rows"]))
-        # ... nor the datasets its finished tasks read
-        progress.setdefault("datasets", [None] * len(progress["rows"]))
-        return progress
-
     def _save_progress(self, progress: dict) -> None:
         self.run_dir.write_progress(progress)
 
@@ -308,7 +134,7 @@ class ContinualLoop:
 
     def _run(self) -> dict:
         self.run_dir.remove_stale_temporaries()  # of writes a kill cut short; the lock is ours
-        progress = self._load_progress()
+        progress = resume_progress(self.run_dir, self.stream, self.fingerprint)
         done = len(progress["rows"])
         last = self.run_dir.checkpoint(done - 1) if done else None
         if last is not None and not last.exists():

@@ -5,6 +5,8 @@ fingerprint that keeps a resumed stream on the settings it started with."""
 from __future__ import annotations
 
 import json
+import re
+from collections.abc import Mapping
 
 from .errors import ConfigError
 
@@ -237,13 +239,40 @@ def plain_config(config: dict) -> dict:
     return json.loads(json.dumps(config, default=str))
 
 
+def callback_labels(class_paths: list[str]) -> list[str]:
+    """How the fingerprint names each callback of a list: its class name, with ``#2``, ``#3``...
+    for a later instance of the same class, so moving a callback in the list keeps its name.
+
+    Example:
+        >>> callback_labels(["a.RolloutEvaluation", "a.SubspacePruning", "a.RolloutEvaluation"])
+        ['RolloutEvaluation', 'SubspacePruning', 'RolloutEvaluation#2']
+    """
+    seen: dict[str, int] = {}
+    labels = []
+    for path in class_paths:
+        name = str(path).rsplit(".", 1)[-1]
+        seen[name] = seen.get(name, 0) + 1
+        labels.append(name if seen[name] == 1 else f"{name}#{seen[name]}")
+    return labels
+
+
 def run_fingerprint(config: dict) -> dict:
     """Every setting that defines a stream run, flat (``model.init_args.optim.lr: 0.001``,
-    ``trainer.callbacks[1].init_args.eps_high: 0.1``), without :data:`NOT_IN_FINGERPRINT`."""
+    ``trainer.callbacks[SubspacePruning].init_args.eps_high: 0.1``), without
+    :data:`NOT_IN_FINGERPRINT`. Callbacks are named by class (:func:`callback_labels`), not by
+    position: the orders that change what a run does are refused by the callbacks' ``setup``
+    and :func:`callback_order_problem`, so a list that passes them trains the same in any
+    order."""
     flat: dict = {}
 
     def walk(node, path: str) -> None:
         if any(path == k or path.startswith(k + ".") for k in NOT_IN_FINGERPRINT):
+            return
+        callbacks = path == "trainer.callbacks" and isinstance(node, list) and node
+        if callbacks and all(isinstance(c, dict) for c in node):
+            labels = callback_labels([c.get("class_path", "") for c in node])
+            for label, callback in zip(labels, node, strict=True):
+                walk(callback, f"{path}[{label}]")
             return
         if isinstance(node, dict):
             for key, value in node.items():
@@ -256,3 +285,28 @@ def run_fingerprint(config: dict) -> dict:
 
     walk(plain_config(config), "")
     return flat
+
+
+_POSITIONAL_CALLBACK = re.compile(r"trainer\.callbacks\[(\d+)\]\.(.+)")
+
+
+def upgrade_callback_keys(fingerprint: Mapping) -> dict:
+    """A fingerprint whose callbacks are keyed by list position
+    (``trainer.callbacks[2].init_args.eps_low``, as runs before class keys stored it) with
+    the keys :func:`run_fingerprint` writes now (``trainer.callbacks[SubspacePruning]...``);
+    other keys pass unchanged, so a run directory of either kind resumes."""
+    positional = {}
+    for key in fingerprint:
+        match = _POSITIONAL_CALLBACK.fullmatch(key)
+        if match:
+            positional[key] = (int(match.group(1)), match.group(2))
+    paths = {i: fingerprint[k] for k, (i, rest) in positional.items() if rest == "class_path"}
+    order = sorted(paths)
+    labels = dict(zip(order, callback_labels([paths[i] for i in order]), strict=True))
+    out = {}
+    for key, value in fingerprint.items():
+        if key in positional and positional[key][0] in labels:
+            i, rest = positional[key]
+            key = f"trainer.callbacks[{labels[i]}].{rest}"
+        out[key] = value
+    return out

@@ -126,7 +126,7 @@ CHOSEN_SETTINGS = (
     ("steps_per_task", r"trainer\.max_steps"),
     ("batch_size", r"data\.batch_size"),
     ("lr", r"model\.init_args\.optim\.lr"),
-    ("episodes", r"trainer\.callbacks\[\d+\]\.init_args\.episodes"),
+    ("episodes", r"trainer\.callbacks\[[^]]+\]\.init_args\.episodes"),
 )
 WIDTH = re.compile(r"model\.init_args\.(?:backbone\.)?(\w*(?:hidden|width)\w*)")
 

@@ -16,7 +16,8 @@ from hispo_pl.config import (
     upgrade_hparams,
 )
 from hispo_pl.modules import HBC, HiSPO
-from hispo_pl.modules.hbc import GoalConditionedBC, read_checkpoint
+from hispo_pl.modules.checkpoints import read_checkpoint
+from hispo_pl.modules.hbc import GoalConditionedBC
 
 # Made by main at e51e6bb (flat hyperparameters: high_hidden, lr, a ``backbone: bc`` string,
 # flat BC's ``hidden``; PNN's heads at the top of its state dict), with each module's actions

@@ -251,7 +251,8 @@ def test_fit_ckpt_path_never_imports_what_the_checkpoint_names(
 
 def test_a_real_checkpoint_names_an_imported_method(tiny_run):
     from hispo_pl.modules import NetworkPerTask
-    from hispo_pl.modules.hbc import checkpoint_model_hparams, imported_method, read_checkpoint
+    from hispo_pl.modules.checkpoints import read_checkpoint
+    from hispo_pl.modules.hbc import checkpoint_model_hparams, imported_method
 
     path = tiny_run[1] / "task_02.ckpt"
     hparams = checkpoint_model_hparams(read_checkpoint(path), path)

@@ -37,7 +37,7 @@ def test_resume_with_other_settings_is_refused_naming_the_keys(tiny_run, capsys)
 
 
 def test_a_second_run_on_the_same_directory_names_the_holder(tiny_run, capsys):
-    from hispo_pl.loop import RunDirLock
+    from hispo_pl.resume import RunDirLock
 
     results, run_dir = tiny_run
     args = tiny_stream_args(

@@ -39,8 +39,9 @@ def _grid_main(parser, args, extra: list[str]) -> int:
     from dataclasses import replace
 
     from ..errors import ConfigError
-    from .grid import grid_streams, load_grid, run_grid
+    from .grid import grid_streams, load_grid
     from .grid_report import write_grid_report
+    from .grid_run import run_grid
     from .report import write_report
 
     if args.stream:

@@ -8,14 +8,12 @@ A grid is a YAML file (``configs/grids/<name>.yaml``): its streams (and named pa
 methods, seeds, the budget, and sweeps. A swept method (L2's and EWC's λ) first runs every value
 on one seed; its seeds then run at the value with the best PER, and the sweep's own run of that
 value stands for the seed it ran, since the two commands differ only in where they log.
-Planning is pure (:func:`plan_cells` reads results through a function); :func:`run_grid` runs.
+Here: the grid's definition and its planning, pure (:func:`plan_cells` reads results through
+a function); :mod:`.grid_run` runs and exports.
 """
 
 from __future__ import annotations
 
-import json
-import shutil
-import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +21,7 @@ from pathlib import Path
 from ..errors import ConfigError, RunDirError
 from ..rundir import RunDir
 from .configs import configured_value
-from .plan import PLAN_FILE, PlannedRun, plan_run, planned_tasks, stream_config_path
+from .plan import PlannedRun, plan_run, planned_tasks, stream_config_path
 
 GRIDS_DIR = "grids"
 GRID_FILE = "grid.json"  # the grid's definition, beside its reports
@@ -314,50 +312,6 @@ def committed_reader(grid: Grid, config_dir: Path, root: Path) -> Callable[[Cell
     return committed_per
 
 
-def export_cell(run_dir: Path, cell: Cell, root: Path, derived_from: Cell | None = None) -> Path:
-    """Copy a finished run's small files to the cell's committed place (and the stream's
-    ``benchmark.json`` for its report title); a derived cell's ``run.json`` names its source."""
-    target = cell.result_dir(root)
-    target.mkdir(parents=True, exist_ok=True)
-    for name in RunDir.EXPORTED:
-        if (Path(run_dir) / name).exists():
-            shutil.copyfile(Path(run_dir) / name, target / name)
-    if derived_from is not None:
-        meta = RunDir(target).read_run_record()
-        meta.update(method=cell.label, derived_from=derived_from.name)
-        RunDir(target).write_run_record(meta)
-    plan_file = Path(root) / cell.stream / PLAN_FILE
-    if not plan_file.exists():
-        plan_file.write_text(json.dumps({"stream": cell.stream}, indent=1))
-    return target
-
-
-def estimated_minutes(cell: Cell, root: Path, streams: Sequence[str]) -> float | None:
-    """A cell's likely wall minutes from committed runs: the mean of its method on its stream,
-    else of its method on the other streams, else of every run on its stream."""
-    from .records import RunRecord
-    from .tables import run_minutes
-
-    def mean(pattern: str, where: Sequence[str]) -> float | None:
-        found = []
-        for stream in where:
-            for seed_dir in sorted((Path(root) / stream).glob(pattern)):
-                run = RunDir(seed_dir)
-                if run.has_results():
-                    found.append(run_minutes(RunRecord("", 0, run.read_results())))
-        return sum(found) / len(found) if found else None
-
-    for pattern, where in (
-        (f"{cell.method}/seed*", [cell.stream]),
-        (f"{cell.method}/seed*", streams),
-        ("*/seed*", [cell.stream]),
-    ):
-        minutes = mean(pattern, where)
-        if minutes is not None:
-            return minutes
-    return None
-
-
 def describe(plan: GridPlan, estimate: Callable[[Cell], float | None]) -> list[str]:
     """The plan as printed lines: per stream, what is done, to run (with its estimated
     minutes from committed runs of the same method), derived and waiting."""
@@ -379,92 +333,3 @@ def describe(plan: GridPlan, estimate: Callable[[Cell], float | None]) -> list[s
         )
     lines += [f"[grid] {line}" for line in plan.waiting]
     return lines
-
-
-def run_grid(
-    grid: Grid,
-    streams: Sequence[str],
-    config_dir: Path,
-    work: Path,
-    root: Path,
-    workers: int = 2,
-    num_threads: int = 1,
-    dry_run: bool = False,
-    write_reports: Callable[[Sequence[str]], None] | None = None,
-) -> int:
-    """Plan, run what is left ``workers`` at a time, export each finished run, and plan again
-    until nothing new can start (a sweep's end lets its method's seeds start). Returns the
-    number of failed runs."""
-    committed_per = committed_reader(grid, config_dir, root)
-
-    def estimate(cell: Cell) -> float | None:
-        return estimated_minutes(cell, root, grid.streams)
-
-    failed = 0
-    attempted: set[str] = set()
-    while True:
-        plan = plan_cells(grid, streams, committed_per)
-        for target, source in plan.derived:
-            export_cell(source.result_dir(root), target, root, derived_from=source)
-            print(f"[grid] {target.name}: the same run as {source.name}, copied")
-        for line in describe(plan, estimate):
-            print(line)
-        todo = [c for c in plan.todo if c.name not in attempted]
-        if dry_run:
-            for cell in todo:
-                run = cell_run(cell, grid, config_dir, work, num_threads)
-                print(f"[grid] {cell.name}: {' '.join(run.command(sys.executable))}")
-            return 0
-        if not todo:
-            break
-        attempted |= {c.name for c in todo}
-        failed += _run_cells(
-            todo, grid, config_dir, work, root, workers, num_threads, write_reports
-        )
-    if write_reports is not None:
-        write_reports(list(streams))
-    return failed
-
-
-def _run_cells(
-    todo: Sequence[Cell],
-    grid: Grid,
-    config_dir: Path,
-    work: Path,
-    root: Path,
-    workers: int,
-    num_threads: int,
-    write_reports: Callable[[Sequence[str]], None] | None,
-) -> int:
-    """Run ``todo`` ``workers`` at a time, exporting each as it finishes; the failures."""
-    from .configs import datasets_needed, prepare_datasets
-    from .launch import Reporter, run_env, run_local
-    from .plan import pending_runs, provenance
-
-    runs = [cell_run(c, grid, config_dir, work, num_threads) for c in todo]
-    cells = {run.run_dir: cell for run, cell in zip(runs, todo, strict=True)}
-    pending, made_on = [], provenance()
-    for stream in dict.fromkeys(c.stream for c in todo):
-        mine = [r for r in runs if cells[r.run_dir].stream == stream]
-        pending += pending_runs(mine, stream, made_on)
-    needed: dict[str, int] = {}
-    for run in pending:
-        for name, episodes in datasets_needed(run.configs, run.argv).items():
-            needed[name] = max(needed.get(name, 0), episodes)
-    prepare_datasets(needed)
-    reporter = Reporter(total=len(pending))
-
-    def finished(run: PlannedRun, outcome: dict) -> None:
-        reporter(run, outcome)
-        if outcome["results"] is None:
-            return
-        cell = cells[run.run_dir]
-        print(f"[grid] {cell.name}: exported to {export_cell(run.run_dir, cell, root)}")
-        if write_reports is not None:
-            write_reports([cell.stream])
-
-    try:
-        run_local(pending, workers, finished, run_env(num_threads))
-    finally:
-        reporter.close()
-    return len(reporter.failed)

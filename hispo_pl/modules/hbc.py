@@ -17,6 +17,7 @@ from ..nn.hierarchy import Forward, HierarchicalPolicy
 from ..nn.mlp import GaussianPolicy
 from ..record import TaskRecord
 from ..rundir import task_label
+from .checkpoints import check_finite_state, check_shapes_on_meta, first_line, read_checkpoint
 
 
 class GoalConditionedBC(L.LightningModule):
@@ -148,13 +149,13 @@ class GoalConditionedBC(L.LightningModule):
             # LightningCLI adds private entries such as ``_class_path`` to the hyperparameters
             hparams = {k: v for k, v in checkpoint["hyper_parameters"].items() if k[:1] != "_"}
             hparams = upgrade_hparams(hparams)
-            _check_shapes_on_meta(method, hparams, checkpoint, path)
+            check_shapes_on_meta(method, hparams, checkpoint, path)
             module = method(**hparams)
             module.load_checkpoint(checkpoint)
         except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as err:
             raise CheckpointError(
                 f"not a readable hispo-pl checkpoint: {path} ({type(err).__name__}: "
-                f"{_first_line(err)})"
+                f"{first_line(err)})"
             ) from None
         return module.eval()
 
@@ -281,81 +282,6 @@ class BC(HBC):
         optim: OptimConfig = OptimConfig(),
     ):
         super().__init__(obs_dim, action_dim, goal_dim, backbone, optim)
-
-
-def check_finite_state(state_dict: dict[str, Tensor], task_index: int = 0) -> None:
-    """Refuse to save weights that are NaN or infinite (a diverged step after the last finite
-    loss): a checkpoint must never hold a policy that only looks trained.
-
-    Raises:
-        TrainingDivergedError: names the first non-finite tensor.
-    """
-    for name, tensor in state_dict.items():
-        if torch.is_tensor(tensor) and tensor.is_floating_point() and not tensor.isfinite().all():
-            raise TrainingDivergedError(
-                f"training diverged: {name} holds NaN or infinite values at the end of task "
-                f"{task_label(task_index)}; nothing was saved. Lower the learning rate "
-                "(--model.init_args.optim.lr)."
-            )
-
-
-def _first_line(err: BaseException) -> str:
-    text = str(err).strip()
-    return text.splitlines()[0] if text else type(err).__name__
-
-
-def _check_shapes_on_meta(method, hparams: dict, checkpoint: dict, path) -> None:
-    """Build ``method`` from a checkpoint's hyperparameters on the meta device (no memory)
-    and compare its tensors' shapes with the stored ones, so that hyperparameters that do not
-    match the weights (a crafted hidden size of a billion) are refused before anything is
-    allocated. A method that cannot be built on the meta device is checked when loaded."""
-    stored = checkpoint["state_dict"]
-    try:
-        with torch.device("meta"):
-            probe = method(**hparams)
-            probe.on_load_checkpoint(checkpoint)
-        expected = {k: tuple(v.shape) for k, v in probe.state_dict().items()}
-    except (RuntimeError, NotImplementedError):
-        return
-    for name in sorted(set(expected) | set(stored)):
-        have = tuple(stored[name].shape) if torch.is_tensor(stored.get(name)) else None
-        if expected.get(name) != have:
-            raise CheckpointError(
-                f"not a readable hispo-pl checkpoint: {path} (its hyperparameters make "
-                f"{name} of shape {expected.get(name)}, its weights hold {have})"
-            )
-
-
-def read_checkpoint(path: str | Path) -> dict:
-    """A checkpoint file's contents, loaded with ``weights_only=True`` on CPU.
-
-    Raises:
-        CheckpointError: the file cannot be read as a checkpoint of plain tensors and values
-            (corrupt, truncated, not a checkpoint, or holding objects that would run code);
-            the message never suggests ``weights_only=False``.
-    """
-    import pickle
-    import re
-
-    try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as err:
-        found = re.search(r"Unsupported global: GLOBAL ([\w.]+)", str(err))
-        what = f" ({found.group(1)})" if found else ""
-        raise CheckpointError(
-            f"not a readable hispo-pl checkpoint: {path} holds Python objects other than "
-            f"tensors and plain values{what}, which hispo-pl never writes and will not load"
-        ) from None
-    except (OSError, RuntimeError, EOFError, ValueError, KeyError, AttributeError) as err:
-        raise CheckpointError(
-            f"not a readable hispo-pl checkpoint: {path} (corrupt or truncated: {_first_line(err)})"
-        ) from None
-    if not isinstance(checkpoint, dict) or not isinstance(checkpoint.get("state_dict"), dict):
-        raise CheckpointError(
-            f"not a readable hispo-pl checkpoint: {path} (no state_dict: not a Lightning "
-            "checkpoint)"
-        )
-    return checkpoint
 
 
 def imported_method(class_path: str) -> type[GoalConditionedBC] | None:
