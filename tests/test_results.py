@@ -102,10 +102,11 @@ def test_unknown_keys_are_kept_and_a_non_record_is_refused(tmp_path):
 def test_decisions_table_renders_only_its_kind_with_the_run_columns():
     loss = LossDecision(task=0, subspace="low", decision="first", eps=0.1, anchors=1, l_curr=0.2)
     critic = CriticDecision(task=1, subspace="policy", decision="keep", eps=0.1, anchors=2)
-    lines = decisions_table(LossDecision, [(("hispo", "0"), [loss, critic])], [("method", "---")])
-    assert lines[0].startswith("| method | task | subspace | L_prev |")
-    assert lines[1].startswith("|---|---:|---|") and len(lines) == 3
-    assert lines[2] == "| hispo | 1 | low |  | 0.2000 |  | 0.1 |  |  | first | 1 |"
+    runs = [(("hispo", "0"), [loss, critic])]
+    lines = decisions_table(LossDecision, runs, [("method", "---"), ("seed", "---:")])
+    assert lines[0].startswith("| method | seed | task | subspace | L_prev |")
+    assert lines[1].startswith("|---|---:|---:|---|") and len(lines) == 3
+    assert lines[2] == "| hispo | 0 | 1 | low |  | 0.2000 |  | 0.1 |  |  | first | 1 |"
     assert decisions_table(ZeroShotDecision, [((), [loss, critic])]) == []
 
 
