@@ -15,6 +15,7 @@ from lightning.pytorch.utilities import rank_zero_warn
 from typing_extensions import override
 
 from ..decisions import decided_by_budget, keep_previous
+from ..results import Decision, LossDecision, ZeroShotDecision
 from ..rundir import RunDir, task_label
 from ..stream_report import PRUNE_BAR
 from ..tasks import Family
@@ -165,39 +166,37 @@ def decide_subspaces(
     return decisions
 
 
-def _number(value) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
+SEARCH_TAGS = {
+    "l_prev": "L_prev",
+    "l_curr": "L_curr",
+    "l_trained": "L_trained",  # refine_current replaced the trained weights
+    "l_curr_train": "L_curr_train",
+    "l_prev_train": "L_prev_train",
+    "improvement": "convergence",
+}
+"""A decision's values logged as ``search/<subspace>/<tag>`` where it has them."""
 
 
 def log_decisions(trainer: L.Trainer, module, decisions: list[dict]) -> None:
     """Append decisions to ``decisions.jsonl`` in the run dir and log them to TensorBoard."""
-    RunDir(trainer.default_root_dir).append_decisions(decisions)
+    records = [Decision.from_json(d) for d in decisions]
+    RunDir(trainer.default_root_dir).append_decisions(records)
     logger = trainer.logger
     if logger is None:
         return
     task = task_label(module.task_index)
-    metrics = {f"anchors/{d['subspace']}/count": d["anchors"] for d in decisions}
-    for d in decisions:
-        if d.get("l_prev") is not None:
-            metrics[f"search/{d['subspace']}/L_prev"] = d["l_prev"]
-        if d.get("l_curr") is not None:
-            metrics[f"search/{d['subspace']}/L_curr"] = d["l_curr"]
-        if d.get("l_prev") is not None and d.get("rule") != "critic" and _number(d.get("eps")):
-            metrics[f"search/{d['subspace']}/{PRUNE_BAR}"] = (1 + d["eps"]) * d["l_curr"]
-        if d.get("l_trained") is not None:  # refine_current replaced the trained weights
-            metrics[f"search/{d['subspace']}/L_trained"] = d["l_trained"]
-        for key, tag in (
-            ("l_curr_train", "L_curr_train"),
-            ("l_prev_train", "L_prev_train"),
-            ("improvement", "convergence"),
-        ):
-            if d.get(key) is not None:
-                metrics[f"search/{d['subspace']}/{tag}"] = d[key]
-        for policy, rate in d.get("pac_rate", {}).items():
-            metrics[f"zero_shot/{d['subspace']}/pac_rate_{policy}"] = rate
+    metrics = {f"anchors/{d.subspace}/count": d.anchors for d in records}
+    for d in records:
+        values = d.to_json()
+        if isinstance(d, LossDecision) and d.l_prev is not None:
+            metrics[f"search/{d.subspace}/{PRUNE_BAR}"] = (1 + d.eps) * d.l_curr
+        for key, tag in SEARCH_TAGS.items():
+            if values.get(key) is not None:
+                metrics[f"search/{d.subspace}/{tag}"] = values[key]
+        if isinstance(d, ZeroShotDecision):
+            for policy, rate in d.pac_rate.items():
+                metrics[f"zero_shot/{d.subspace}/pac_rate_{policy}"] = rate
     logger.log_metrics(metrics, step=task)
     if isinstance(logger, TensorBoardLogger):
-        text = "\n".join(
-            f"{d['subspace']}: {d['decision']} (anchors {d['anchors']})" for d in decisions
-        )
+        text = "\n".join(f"{d.subspace}: {d.decision} (anchors {d.anchors})" for d in records)
         logger.experiment.add_text("decisions", text, global_step=task)

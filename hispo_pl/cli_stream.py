@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 from .data.datamodule import TaskDataModule
 from .errors import ConfigError, RunDirError
+from .results import StreamResults, fwt_reference
 from .run_checks import plain_config, run_fingerprint
 from .rundir import read_results_file, task_label
 from .tasks import Task
@@ -37,16 +38,16 @@ def scratch_diagonal(path: Path, n_tasks: int) -> list[float]:
     if not path.is_file():
         raise ConfigError(f"--scratch_results {path}: no such file (a stream's results.json)")
     try:
-        results = read_results_file(path)
+        results = StreamResults.from_json(read_results_file(path))
     except RunDirError as err:
         raise ConfigError(f"--scratch_results: {err}") from None
-    R = results["R"]
-    if len(R) != n_tasks:
+    reference = fwt_reference(results, n_tasks)
+    if reference is None:
         raise ConfigError(
-            f"--scratch_results {path}: its stream has {len(R)} tasks, this one {n_tasks}; "
-            "give the results.json of a from-scratch run (scn) of the same stream"
+            f"--scratch_results {path}: its stream has {len(results.R)} tasks, this one "
+            f"{n_tasks}; give the results.json of a from-scratch run (scn) of the same stream"
         )
-    return [R[k][k] for k in range(n_tasks)]
+    return reference
 
 
 def task_datamodules(

@@ -8,12 +8,15 @@ import contextlib
 import logging
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import lightning as L
 from lightning.pytorch.callbacks import TQDMProgressBar
 
+from .metrics import METRICS
 from .progress import duration, interactive
+from .results import Decision, StreamResults
 from .rundir import RunDir, task_label
 
 # Lightning's start-of-fit notices (accelerator lines, tips) go through these loggers
@@ -46,20 +49,14 @@ def quiet_lightning_notices() -> None:
         logging.getLogger(name).setLevel(logging.WARNING)
 
 
-def decision_parts(decisions: list[dict]) -> list[str]:
-    """``low prune (1.05 vs 1.10)`` for each kept or pruned subspace: the ratio the loss rule
-    compared, ``L_prev / L_curr``, against ``1 + eps``; for a critic's decision (CSP)
-    ``policy keep (W 0.52 vs 0.47)``: ``W_curr`` against the bar ``W_prev + eps·|W_prev|``."""
+def decision_parts(decisions: Sequence[Decision]) -> list[str]:
+    """``low prune (1.05 vs 1.10)`` for each kept or pruned subspace: the two sides its rule
+    compared (:meth:`~hispo_pl.results.Decision.comparison`)."""
     parts = []
     for d in decisions:
-        if d.get("decision") not in ("keep", "prune"):
-            continue
-        if d.get("rule") == "critic" and d.get("w_prev") is not None:
-            bar = d["w_prev"] + d["eps"] * abs(d["w_prev"])
-            parts.append(f"{d['subspace']} {d['decision']} (W {d['w_curr']:.3f} vs {bar:.3f})")
-        elif d.get("l_curr") and d.get("l_prev") is not None:
-            ratio = d["l_prev"] / d["l_curr"]
-            parts.append(f"{d['subspace']} {d['decision']} ({ratio:.2f} vs {1 + d['eps']:.2f})")
+        comparison = d.comparison() if d.decision in ("keep", "prune") else None
+        if comparison is not None:
+            parts.append(f"{d.subspace} {d.decision} ({comparison})")
     return parts
 
 
@@ -72,7 +69,7 @@ def task_summary(
     n: int,
     seconds: float,
     row: list[float],
-    decisions: list[dict],
+    decisions: Sequence[Decision],
     phases: dict[str, float] | None = None,
 ) -> str:
     """After task ``k``: time (and where it went), success on it and on the tasks before, each
@@ -83,7 +80,7 @@ def task_summary(
     line += f": success {100 * row[k]:.0f} %"
     if k:
         line += f" (earlier tasks: mean {100 * sum(row[:k]) / k:.0f} %)"
-    parts = decision_parts([d for d in decisions if d.get("task") == k])
+    parts = decision_parts([d for d in decisions if d.task == k])
     return line + ("; " + ", ".join(parts) if parts else "")
 
 
@@ -173,36 +170,45 @@ def task_progress(callbacks: list, label: str, max_steps: int | None, bar: bool)
     return kept
 
 
-def decision_lines(decisions: list[dict]) -> list[str]:
-    """One line per task after the first: each subspace's keep / prune decision and the ratio
-    the rule compared (``L_prev / L_curr`` against ``1 + eps``)."""
+def decision_lines(decisions: Sequence[Decision]) -> list[str]:
+    """One line per task after the first: each subspace's keep / prune decision and the two
+    sides its rule compared."""
     lines = []
-    for t in sorted({d["task"] for d in decisions}):
-        parts = decision_parts([d for d in decisions if d["task"] == t])
+    for t in sorted({d.task for d in decisions}):
+        parts = decision_parts([d for d in decisions if d.task == t])
         if parts:
             lines.append(f"task {task_label(t)}: " + ", ".join(parts))
     return lines
 
 
+def decision_legend(decisions: Sequence[Decision]) -> str:
+    """How to read the compared sides of :func:`decision_lines`, for each rule that compared."""
+    return "; ".join(dict.fromkeys(d.LEGEND for d in decisions if d.comparison()))
+
+
+def metrics_line(results: StreamResults) -> str:
+    """``PER 81.0  BWT -2.1  MEM 1.93 models``: every metric the stream has."""
+    parts = [
+        f"{m.name} {m.format(results.metrics[m.name])}" + ("" if m.percent else " models")
+        for m in METRICS
+        if m.name in results.metrics
+    ]
+    return "  ".join(parts)
+
+
 def print_stream_results(results: dict) -> None:
-    print(f"[hispo-pl] stream {' -> '.join(results['stream'])}")
-    print(results["table"])
-    parts = [f"{k} {100 * results[k]:.1f}" for k in ("PER", "BWT", "FWT") if k in results]
-    if "MEM" in results:
-        parts.append(f"MEM {results['MEM']:.2f} models")
-    print("[hispo-pl] " + "  ".join(parts))
-    if results.get("anchors"):
-        print(f"[hispo-pl] anchors per subspace: {results['anchors']}")
+    typed = StreamResults.from_json(results)
+    print(f"[hispo-pl] stream {' -> '.join(typed.stream)}")
+    print(typed.table)
+    print("[hispo-pl] " + metrics_line(typed))
+    if typed.anchors:
+        print(f"[hispo-pl] anchors per subspace: {typed.anchors}")
     run_dir = RunDir(results["run_dir"])
-    decisions = run_dir.read_decisions()
-    legend = (
-        "W_curr vs W_prev + eps |W_prev|"
-        if any(d.get("rule") == "critic" for d in decisions)
-        else "L_prev / L_curr vs 1 + eps"
-    )
+    decisions = run_dir.decisions()
+    legend = decision_legend(decisions)
     for line in decision_lines(decisions):
         print(f"[hispo-pl] {line}  ({legend})")
-    print(f"[hispo-pl] wall time per task (s): {[round(t) for t in results['wall_time_s']]}")
+    print(f"[hispo-pl] wall time per task (s): {[round(t) for t in typed.wall_time_s]}")
     print(f"[hispo-pl] results: {run_dir.results_file}")
     if any(Path(results["run_dir"]).glob("events.out.tfevents.*")):
         print(f"[hispo-pl] curves and decisions: tensorboard --logdir {results['run_dir']}")

@@ -13,6 +13,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.ticker import ScalarFormatter
 
+from .metrics import METRICS
 from .rundir import task_label
 
 TRIANGLE = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, np.sqrt(3) / 2]])
@@ -66,16 +67,15 @@ def success_matrix_figure(
 
 
 def stream_summary(results: dict) -> str:
-    """``PER 99.4  BWT 0.0  FWT 0.6 (success %)  MEM 1.93``: the stream metrics as the tables
-    print them (success ×100, MEM a ratio of model sizes, never a percentage)."""
-    parts = [
-        f"{key} {100 * results[key]:.1f}"
-        for key in ("PER", "BWT", "FWT")
-        if results.get(key) is not None
-    ]
-    text = "  ".join(parts) + (" (success %)" if parts else "")
-    if results.get("MEM") is not None:
-        text += f"  MEM {results['MEM']:.2f}"
+    """``PER 99.4  BWT 0.0  FWT 0.6 (success %)  MEM 1.93``: the metrics of
+    :data:`~hispo_pl.metrics.METRICS` as the tables print them (success ×100, MEM a ratio of
+    model sizes, never a percentage)."""
+    known = [m for m in METRICS if results.get(m.name) is not None]
+    percent = [f"{m.name} {m.format(results[m.name])}" for m in known if m.percent]
+    text = "  ".join(percent) + (" (success %)" if percent else "")
+    for m in known:
+        if not m.percent:
+            text += f"  {m.name} {m.format(results[m.name])}"
     return text.strip()
 
 
@@ -212,15 +212,16 @@ def _within(box: tuple[float, ...], bounds: tuple[float, ...] | None) -> bool:
 
 def perf_vs_memory_figure(rows: Sequence, stream: str = "") -> Figure:
     """The paper's Figure 2: MEM on x, PER (%) on y over the whole 0..100 range, one marker
-    per method (rows with ``method``, ``seeds``, ``MEM`` and ``PER`` as (mean, std)), error
+    per method (rows with ``method``, ``seeds`` and ``metrics``: ``MEM`` and ``PER`` as (mean,
+    std)), error
     bars of the std over seeds where there are several (one seed has no interval: the legend
     says so), each method labelled next to its marker without overlaps."""
-    rows = [r for r in rows if r.MEM is not None]
+    rows = [r for r in rows if "MEM" in r.metrics]
     fig = Figure(figsize=(6.8, 4.5), layout="constrained")
     ax = fig.add_subplot()
     markers, colors = "osD^vP*Xh<>p", []
     for i, row in enumerate(rows):
-        (x, xs), (y, ys) = row.MEM, row.PER
+        (x, xs), (y, ys) = row.metrics["MEM"], row.metrics["PER"]
         several = len(row.seeds) > 1
         drawn = ax.errorbar(
             x,
@@ -233,9 +234,9 @@ def perf_vs_memory_figure(rows: Sequence, stream: str = "") -> Figure:
             f"{'' if several else ', no interval'})",
         )
         colors.append(drawn.lines[0].get_color())
-    xs_all = [r.MEM[0] for r in rows] or [1.0]
+    xs_all = [r.metrics["MEM"][0] for r in rows] or [1.0]
     ax.set_xlim(*span_limits(min(xs_all), max(xs_all), min_span=1.0))
-    top = max([100 * (r.PER[0] + r.PER[1]) for r in rows] + [100.0])
+    top = max([100 * sum(r.metrics["PER"]) for r in rows] + [100.0])
     ax.set_ylim(0, top + 4)
     ax.set_yticks(range(0, 101, 20))
     plain_ticks(ax)
@@ -248,14 +249,15 @@ def perf_vs_memory_figure(rows: Sequence, stream: str = "") -> Figure:
         ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.draw_without_rendering()  # the layout's final axes, so labels are placed as drawn
     fontsize = 8
-    points = ax.transData.transform([(r.MEM[0], 100 * r.PER[0]) for r in rows]) * 72 / fig.dpi
+    centres = [(r.metrics["MEM"][0], 100 * r.metrics["PER"][0]) for r in rows]
+    points = ax.transData.transform(centres) * 72 / fig.dpi
     sizes = [(0.62 * fontsize * len(r.method), 1.2 * fontsize) for r in rows]
     frame = ax.get_window_extent().extents * 72 / fig.dpi
     offsets = label_offsets([tuple(p) for p in points], sizes, bounds=tuple(frame))
-    for row, color, (dx, dy) in zip(rows, colors, offsets, strict=True):
+    for row, centre, color, (dx, dy) in zip(rows, centres, colors, offsets, strict=True):
         ax.annotate(
             row.method,
-            (row.MEM[0], 100 * row.PER[0]),
+            centre,
             xytext=(dx, dy),
             textcoords="offset points",
             ha="left",
@@ -263,4 +265,31 @@ def perf_vs_memory_figure(rows: Sequence, stream: str = "") -> Figure:
             color=color,
             fontsize=fontsize,
         )
+    return fig
+
+
+def iqm_vs_memory_figure(rows: Sequence, title: str) -> Figure:
+    """PER's IQM with its interval against mean MEM, one marker per method (rows with
+    ``method``, ``streams``, ``means`` and ``iqm``: point, low, high)."""
+    fig = Figure(figsize=(6.4, 4.6))
+    ax = fig.add_subplot()
+    markers = "osD^vP*Xh<>p"
+    for i, row in enumerate(r for r in rows if "MEM" in r.means):
+        point, low, high = row.iqm
+        ax.errorbar(
+            row.means["MEM"],
+            point,
+            yerr=[[point - low], [high - point]],
+            fmt=markers[i % len(markers)],
+            capsize=3,
+            label=f"{row.method} ({len(row.streams)} streams)",
+        )
+    ax.ticklabel_format(useOffset=False)
+    ax.set_ylim(0, 102)  # room for the markers at 100 %
+    ax.set_xlabel("MEM (mean stored size / one single-task model)")
+    ax.set_ylabel("PER IQM (success %), 95 % CI")
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7, loc="lower right")
     return fig

@@ -24,9 +24,10 @@ from .console import lightning_notices_once, quiet_lightning_notices, say, task_
 from .data.datamodule import TaskDataModule
 from .errors import Interrupted
 from .io import atomic_save
-from .metrics import continual_metrics, memory_ratio, module_bytes, results_row_table
+from .metrics import continual_metrics, module_bytes, results_row_table
 from .modules.hispo import SubspacePolicy
 from .resume import MissingCheckpointError, RunDirLock, TaskCheckpoint, resume_progress
+from .results import StreamResults
 from .rundir import RunDir, task_label
 from .stream_report import log_stream_end, log_task_end
 from .tasks import Task, parse_task
@@ -161,9 +162,9 @@ class ContinualLoop:
         results = self._results(progress)
         self.run_dir.write_results(results)
         if self._loggers:
-            decisions = self.run_dir.read_decisions()
+            decisions = self.run_dir.decisions()
             log_stream_end(self._loggers, results, decisions, self.fingerprint or {})
-        return results
+        return results.to_json()
 
     def _rollout_picture(self, k: int):
         """Ten of task ``k``'s scored rollouts (RolloutEvaluation's, with their paths) drawn on
@@ -207,8 +208,8 @@ class ContinualLoop:
             picture = self._rollout_picture(k) if self.pictures else None
             subspaces = None
             if not self._layout_logged:  # the Custom Scalars layout, once per run
-                decided = self.run_dir.read_decisions()
-                subspaces = list(dict.fromkeys(d["subspace"] for d in decided))
+                decided = self.run_dir.decisions()
+                subspaces = list(dict.fromkeys(d.subspace for d in decided))
                 self._layout_logged = True
             log_task_end(self._loggers, k, row, picture, subspaces)
         atomic_save(
@@ -223,32 +224,29 @@ class ContinualLoop:
         progress["datasets"].append(datamodule.dataset_use.as_json())
         self._save_progress(progress)
         partial.unlink(missing_ok=True)
-        decisions = self.run_dir.read_decisions()
+        decisions = self.run_dir.decisions()
         say(task_summary(k, len(self.stream), elapsed, row, decisions, phases))
         quiet_lightning_notices()  # shown with the first task; the next ones repeat them
 
-    def _results(self, progress: dict) -> dict:
+    def _results(self, progress: dict) -> StreamResults:
         n = len(self.stream)
         R = np.full((n, n), np.nan)
         for i, row in enumerate(progress["rows"]):
             R[i, : len(row)] = row
-        out: dict = {
-            "stream": self.stream,
-            "R": [[None if math.isnan(v) else v for v in row] for row in R.tolist()],
-            "wall_time_s": progress["wall_time_s"],
-            "phase_time_s": progress["phase_time_s"],
-            # per task: the Minari id and the episodes it read (None: a task of an older run)
-            "datasets": progress["datasets"],
-        }
-        out.update(continual_metrics(R, self.scratch_success))
         stored = module_bytes(self.module)
-        out["stored_bytes"] = stored
-        if self.reference_bytes:
-            out["MEM"] = memory_ratio(stored, self.reference_bytes)
+        results = StreamResults(
+            stream=self.stream,
+            R=[[None if math.isnan(v) else v for v in row] for row in R.tolist()],
+            wall_time_s=progress["wall_time_s"],
+            phase_time_s=progress["phase_time_s"],
+            # per task: the Minari id and the episodes it read (None: a task of an older run)
+            datasets=progress["datasets"],
+            metrics=continual_metrics(R, self.scratch_success, stored, self.reference_bytes),
+            stored_bytes=stored,
+            table=results_row_table(R),
+        )
         if isinstance(self.module, SubspacePolicy):
-            out["anchors"] = {n: self.module.n_anchors(n) for n in self.module.subspace_names}
-            out["alphas"] = {
-                n: self.module.task_alphas(n).tolist() for n in self.module.subspace_names
-            }
-        out["table"] = results_row_table(R)
-        return out
+            names = self.module.subspace_names
+            results.anchors = {n: self.module.n_anchors(n) for n in names}
+            results.alphas = {n: self.module.task_alphas(n).tolist() for n in names}
+        return results

@@ -1,4 +1,5 @@
-"""Continual-learning stream metrics (PER, BWT, FWT, MEM) from a results matrix.
+"""Continual-learning stream metrics (PER, BWT, FWT, MEM): one table, :data:`METRICS`, that
+the loop, the console, the loggers and the report tables all read.
 
 Kept pure (numpy only; torch is imported lazily by :func:`module_bytes`) so the numbers in
 tables can be recomputed from saved results without a model, an environment or a GPU.
@@ -10,6 +11,8 @@ metric. Values stay in the units of ``R`` (fractions 0-1); multiply by 100 for t
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
@@ -65,8 +68,89 @@ def _scratch_vector(R_scratch: ArrayLike, n: int) -> np.ndarray:
     return arr
 
 
-def continual_metrics(R: ArrayLike, R_scratch: ArrayLike | None = None) -> dict[str, float]:
-    """PER, BWT and (when ``R_scratch`` is given) FWT of a task stream.
+@dataclass(frozen=True)
+class Measures:
+    """What the stream metrics are functions of: ``R`` (checked, NaN above the diagonal), the
+    per-task success of from-scratch models (FWT's reference) and, where the model is at
+    hand (the loop), its stored bytes and those of one single-task model."""
+
+    R: np.ndarray
+    scratch: np.ndarray | None = None
+    stored_bytes: int | None = None
+    reference_bytes: int | None = None
+
+    @property
+    def final(self) -> np.ndarray:
+        return self.R[-1]
+
+    @property
+    def diagonal(self) -> np.ndarray:
+        return np.diagonal(self.R)
+
+
+@dataclass(frozen=True)
+class Metric:
+    """A stream metric: its name (the key in ``results.json``, the column of the tables, the
+    ``stream/<name>`` tag), its function of :class:`Measures` (None where it cannot be had),
+    the scale and decimals it is printed at, and a line of what it means.
+
+    ``of_model``: measured on the trained model (MEM): computed by the loop, which has the
+    model, and read back from ``results.json`` everywhere else."""
+
+    name: str
+    compute: Callable[[Measures], float | None]
+    scale: float
+    digits: int
+    doc: str
+    of_model: bool = False
+
+    def format(self, value: float) -> str:
+        """``81.0``: the value as the console and the tables print it."""
+        return f"{self.scale * value:.{self.digits}f}"
+
+    @property
+    def percent(self) -> bool:
+        """A success fraction (or a difference of two), printed ×100."""
+        return self.scale == 100
+
+
+def _mem(m: Measures) -> float | None:
+    if m.stored_bytes is None or not m.reference_bytes:
+        return None
+    return memory_ratio(m.stored_bytes, m.reference_bytes)
+
+
+METRICS: tuple[Metric, ...] = (
+    Metric("PER", lambda m: float(m.final.mean()), 100, 1, "final success over all tasks"),
+    Metric(
+        "BWT",
+        lambda m: float((m.final - m.diagonal).mean()),
+        100,
+        1,
+        "change since each task was learned (negative: forgetting)",
+    ),
+    Metric(
+        "FWT",
+        lambda m: None if m.scratch is None else float((m.diagonal - m.scratch).mean()),
+        100,
+        1,
+        "gain over single-task models trained from scratch",
+    ),
+    Metric("MEM", _mem, 1, 2, "stored size over one single-task model", of_model=True),
+)
+"""Every stream metric, in the order files, tables, the console and the loggers show them."""
+
+METRIC = {m.name: m for m in METRICS}
+
+
+def continual_metrics(
+    R: ArrayLike,
+    R_scratch: ArrayLike | None = None,
+    stored_bytes: int | None = None,
+    reference_bytes: int | None = None,
+) -> dict[str, float]:
+    """Every metric of :data:`METRICS` the inputs give, by name, in table order: PER, BWT,
+    FWT (when ``R_scratch`` is given), MEM (when both sizes are).
 
     - ``PER = 1/N Σ_k R[N-1, k]``: final performance over all tasks.
     - ``BWT = 1/N Σ_k (R[N-1, k] - R[k, k])``: change since each task was learned
@@ -74,18 +158,13 @@ def continual_metrics(R: ArrayLike, R_scratch: ArrayLike | None = None) -> dict[
     - ``FWT = 1/N Σ_k (R[k, k] - R_scratch[k])``: gain over a single-task model trained from
       scratch; omitted from the dict (not NaN) without ``R_scratch`` so callers cannot
       mistake a missing baseline for a number.
+    - ``MEM``: :func:`memory_ratio`.
     """
     arr = _results_matrix(R)
-    n = arr.shape[0]
-    final = arr[n - 1]
-    diag = np.diagonal(arr)
-    out = {
-        "PER": float(final.mean()),
-        "BWT": float((final - diag).mean()),
-    }
-    if R_scratch is not None:
-        out["FWT"] = float((diag - _scratch_vector(R_scratch, n)).mean())
-    return out
+    scratch = None if R_scratch is None else _scratch_vector(R_scratch, arr.shape[0])
+    measures = Measures(arr, scratch, stored_bytes, reference_bytes)
+    found = {m.name: m.compute(measures) for m in METRICS}
+    return {name: value for name, value in found.items() if value is not None}
 
 
 def memory_ratio(stored_bytes: int, reference_bytes: int) -> float:
@@ -145,17 +224,13 @@ def results_row_table(R: ArrayLike) -> str:
 
 
 def summarize_runs(results: list[dict]) -> dict[str, tuple[float, float]]:
-    """Mean and (population) standard deviation over runs of each stream metric, as the
-    paper's tables report them: PER, BWT, FWT (where every run has it), MEM, and the wall
-    time of a whole stream in minutes. ``results`` are ``results.json`` dicts."""
+    """Mean and (population) standard deviation over runs of each metric of :data:`METRICS`
+    that every run has, as the paper's tables report them, and of the wall time of a whole
+    stream in minutes. ``results`` are ``results.json`` dicts."""
     if not results:
         raise ValueError("no runs to summarise")
     columns = {
-        "PER": [r["PER"] for r in results],
-        "BWT": [r["BWT"] for r in results],
-        "MEM": [r["MEM"] for r in results],
-        "minutes": [sum(r["wall_time_s"]) / 60 for r in results],
+        m.name: [r[m.name] for r in results] for m in METRICS if all(m.name in r for r in results)
     }
-    if all("FWT" in r for r in results):
-        columns["FWT"] = [r["FWT"] for r in results]
+    columns["minutes"] = [sum(r["wall_time_s"]) / 60 for r in results]
     return {k: (float(np.mean(v)), float(np.std(v))) for k, v in columns.items()}

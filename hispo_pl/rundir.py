@@ -34,6 +34,7 @@ import numpy as np
 
 from .errors import RunDirError
 from .io import atomic_write_text
+from .results import Decision, StreamResults, TaskResult
 
 
 def task_label(index: int) -> int:
@@ -237,7 +238,14 @@ class RunDir:
         """
         return read_results_file(self.results_file)
 
-    def write_results(self, results: dict) -> None:
+    def stream_results(self) -> StreamResults:
+        """``results.json`` as :class:`~hispo_pl.results.StreamResults` (checked as
+        :meth:`read_results`)."""
+        return StreamResults.from_json(self.read_results())
+
+    def write_results(self, results: StreamResults | dict) -> None:
+        if isinstance(results, StreamResults):
+            results = results.to_json()
         atomic_write_text(self.results_file, json.dumps(results, indent=1))
 
     def write_task_config(self, task: int, text: str) -> None:
@@ -251,10 +259,24 @@ class RunDir:
         lines = self.decisions_file.read_text().splitlines()
         return [r for r in map(_decision, lines) if r is not None]
 
-    def append_decisions(self, records: Iterable[dict]) -> None:
+    def decisions(self) -> list[Decision]:
+        """Every record of ``decisions.jsonl`` as its kind of
+        :class:`~hispo_pl.results.Decision`, in order; a line that is no decision record
+        (cut by a kill, or of no known kind) is skipped, as :meth:`read_decisions` does."""
+        found = []
+        for record in self.read_decisions():
+            try:
+                found.append(Decision.from_json(record))
+            except ValueError:
+                continue
+        return found
+
+    def append_decisions(self, records: Iterable[Decision | dict]) -> None:
         self.path.mkdir(parents=True, exist_ok=True)
         with open(self.decisions_file, "a") as f:
             for record in records:
+                if isinstance(record, Decision):
+                    record = record.to_json()
                 f.write(json.dumps(record) + "\n")
 
     def keep_decisions(self, keep: Callable[[dict], bool]) -> None:
@@ -289,7 +311,13 @@ class RunDir:
     def read_result(self) -> dict:
         return _read_object(self.result_file, "a single-task fit's evaluation")
 
-    def write_result(self, result: dict) -> None:
+    def task_result(self) -> TaskResult:
+        """``result.json`` as :class:`~hispo_pl.results.TaskResult`."""
+        return TaskResult.from_json(self.read_result())
+
+    def write_result(self, result: TaskResult | dict) -> None:
+        if isinstance(result, TaskResult):
+            result = result.to_json()
         atomic_write_text(self.result_file, json.dumps(result, indent=2) + "\n")
 
     def read_run_record(self) -> dict:

@@ -1,7 +1,7 @@
 """What a stream tells its loggers: after each task, the success on every task seen so far
-(forgetting curves) and a picture of its rollouts; at the end, PER, BWT, FWT and MEM as
-scalars and as the HParams tab's metrics, the success matrix as a heatmap and a table, the
-anchor weights per task and the decisions.
+(forgetting curves) and a picture of its rollouts; at the end, the metrics of
+:data:`~hispo_pl.metrics.METRICS` as scalars and as the HParams tab's metrics, the success
+matrix as a heatmap and a table, the anchor weights per task and the decisions.
 
 Every stream-level value is logged at step = number of tasks trained (1 after the first task),
 through every logger of the trainer (TensorBoard, CSV, MLflow, W&B...); figures, text and the
@@ -24,9 +24,9 @@ from .figures import (
     task_labels,
     task_tag,
 )
+from .metrics import METRICS
+from .results import DECISION_KINDS, Decision, StreamResults, decisions_table
 
-STREAM_METRICS = ("PER", "BWT", "FWT", "MEM")
-PERCENT_METRICS = ("PER", "BWT", "FWT")  # success differences, ×100 as the tables print them
 PRUNE_BAR = "L_curr_x_1_plus_eps"  # (1 + eps) * L_curr; '+' and '()' are not allowed in tags
 
 
@@ -43,19 +43,19 @@ def task_row_metrics(task_index: int, row: Sequence[float]) -> dict[str, float]:
     return metrics
 
 
-def stream_metrics(results: dict) -> dict[str, float]:
-    """``stream/PER`` ... of a finished stream's results (those it has): PER, BWT, FWT in %,
-    MEM as a ratio."""
+def stream_metrics(results: StreamResults) -> dict[str, float]:
+    """``stream/PER`` ... of a finished stream: each metric of
+    :data:`~hispo_pl.metrics.METRICS` it has, at its printed scale (success in %, MEM a ratio)."""
     return {
-        f"stream/{k}": (100 if k in PERCENT_METRICS else 1) * float(results[k])
-        for k in STREAM_METRICS
-        if results.get(k) is not None
+        f"stream/{m.name}": m.scale * float(results.metrics[m.name])
+        for m in METRICS
+        if results.metrics.get(m.name) is not None
     }
 
 
-def anchor_metrics(results: dict) -> dict[str, float]:
+def anchor_metrics(results: StreamResults) -> dict[str, float]:
     """``anchors/<subspace>/count`` of a finished stream: the HParams tab's anchor columns."""
-    return {f"anchors/{k}/count": float(v) for k, v in (results.get("anchors") or {}).items()}
+    return {f"anchors/{k}/count": float(v) for k, v in (results.anchors or {}).items()}
 
 
 def alpha_metrics(alphas: dict[str, Sequence[Sequence[float]]]) -> dict[str, float]:
@@ -78,34 +78,22 @@ def success_markdown(R: Sequence[Sequence[float | None]]) -> str:
     return "\n".join(lines)
 
 
-def decisions_markdown(decisions: Sequence[dict]) -> str:
-    """One row per task and subspace: decision, the losses the rule compared, anchors after.
-    (A zero-shot record's ``eps`` is the PAC test's, per subspace: not a pruning tolerance.)"""
-    lines = [
-        "| task | subspace | decision | L_prev | L_curr | L_prev / L_curr | 1 + ε | anchors |",
-        "|---|---|---|---:|---:|---:|---:|---:|",
-    ]
-    for d in decisions:
-        prev, curr = d.get("l_prev"), d.get("l_curr")
-        ratio = f"{prev / curr:.3f}" if prev is not None and curr else ""
-        eps = f"{1 + d['eps']:.2f}" if isinstance(d.get("eps"), int | float) else ""
-        lines.append(
-            f"| {task_tag(d['task'])} | {d['subspace']} | {d['decision']} | "
-            f"{'' if prev is None else f'{prev:.4f}'} | {'' if curr is None else f'{curr:.4f}'} | "
-            f"{ratio} | {eps} | {d.get('anchors', '')} |"
-        )
-    return "\n".join(lines)
+def decisions_markdown(decisions: Sequence[Decision]) -> str:
+    """A table per kind of decision the run took (:func:`~hispo_pl.results.decisions_table`):
+    one row per task and subspace, with what its rule compared and the anchors after."""
+    tables = [decisions_table(kind, [((), decisions)]) for kind in DECISION_KINDS]
+    return "\n\n".join("\n".join(lines) for lines in tables if lines)
 
 
-def anchors_markdown(decisions: Sequence[dict]) -> str:
+def anchors_markdown(decisions: Sequence[Decision]) -> str:
     """The anchor count of each subspace after each task, with the decision that set it (a
     few points a line chart hardly shows)."""
-    subspaces = list(dict.fromkeys(d["subspace"] for d in decisions if "anchors" in d))
-    last = {(d["task"], d["subspace"]): d for d in decisions if "anchors" in d}
+    subspaces = list(dict.fromkeys(d.subspace for d in decisions))
+    last = {(d.task, d.subspace): d for d in decisions}
     lines = ["| after | " + " | ".join(subspaces) + " |", "|---|" + "---:|" * len(subspaces)]
     for task in sorted({t for t, _ in last}):
         cells = [
-            f"{last[task, s]['anchors']} ({last[task, s]['decision']})" if (task, s) in last else ""
+            f"{last[task, s].anchors} ({last[task, s].decision})" if (task, s) in last else ""
             for s in subspaces
         ]
         lines.append(f"| {task_tag(task)} | " + " | ".join(cells) + " |")
@@ -131,7 +119,7 @@ CHOSEN_SETTINGS = (
 WIDTH = re.compile(r"model\.init_args\.(?:backbone\.)?(\w*(?:hidden|width)\w*)")
 
 
-def chosen_hparams(settings: dict, decisions: Sequence[dict] = ()) -> dict:
+def chosen_hparams(settings: dict, decisions: Sequence[Decision] = ()) -> dict:
     """The HParams tab's columns: the settings a user chooses between runs (method, stream,
     seed, steps per task, batch, learning rate, widths, evaluation episodes) and each
     subspace's pruning tolerance as applied (the decisions' ``eps``, so a family default shows
@@ -152,8 +140,8 @@ def chosen_hparams(settings: dict, decisions: Sequence[dict] = ()) -> dict:
         if width and value is not None:
             chosen[width.group(1)] = value
     for d in decisions:
-        if isinstance(d.get("eps"), int | float) and not isinstance(d.get("eps"), bool):
-            chosen[f"eps_{d['subspace']}"] = d["eps"]
+        if d.tolerance is not None:
+            chosen[f"eps_{d.subspace}"] = d.tolerance
     return plain_hparams(chosen)
 
 
@@ -221,22 +209,25 @@ def log_task_end(
 
 
 def log_stream_end(
-    loggers: Sequence[Logger], results: dict, decisions: Sequence[dict], settings: dict
+    loggers: Sequence[Logger],
+    results: StreamResults,
+    decisions: Sequence[Decision],
+    settings: dict,
 ) -> None:
     """A finished stream: its metrics (also as the HParams tab's), the success matrix, the
     anchor weights and the decisions."""
-    step = len(results["R"])
+    step = len(results.R)
     metrics = stream_metrics(results)
-    alphas = results.get("alphas") or {}
+    alphas = results.alphas or {}
     hparams = chosen_hparams(settings, decisions)
     for logger in loggers:
         if isinstance(logger, TensorBoardLogger):
             logger.log_metrics(metrics, step=step)
             write_hparams(logger, hparams, [*metrics, *anchor_metrics(results)], step)
             writer = logger.experiment
-            matrix = success_matrix_figure(results["R"], results.get("stream"))
+            matrix = success_matrix_figure(results.R, results.stream)
             writer.add_figure("stream/success_matrix", matrix, step)
-            writer.add_text("stream/success_matrix", success_markdown(results["R"]), step)
+            writer.add_text("stream/success_matrix", success_markdown(results.R), step)
             for subspace, rows in alphas.items():
                 writer.add_figure(f"alpha/{subspace}", anchor_weights_figure(rows, subspace), step)
                 if rows and len(rows[0]) == 3:

@@ -14,6 +14,7 @@ from helpers import BENCH_TINY, BENCH_TINY_OVERRIDES, benchmark_config_dir
 
 from hispo_pl import benchmark as bm
 from hispo_pl.cli import main as cli_main
+from hispo_pl.results import Decision, StreamResults
 
 ROOT = Path(__file__).resolve().parents[1]
 NAN = None  # JSON's null above the diagonal of R
@@ -140,7 +141,7 @@ def test_plan_runs_builds_fit_commands(tmp_path):
 # --- aggregation ------------------------------------------------------------------------------
 
 
-def _results(diag, final, mem=None, anchors=None, minutes=1.0) -> dict:
+def _results(diag, final, mem=None, anchors=None, minutes=1.0) -> StreamResults:
     """results.json of a 2-task stream: R = [[d0, null], [f0, f1]] with f1 = d1."""
     out = {
         "stream": BENCH_TINY,
@@ -152,7 +153,7 @@ def _results(diag, final, mem=None, anchors=None, minutes=1.0) -> dict:
         out["MEM"] = mem
     if anchors is not None:
         out["anchors"] = anchors
-    return out
+    return StreamResults.from_json(out)
 
 
 def test_scratch_method_for():
@@ -172,7 +173,11 @@ def test_run_metrics_fwt_from_scratch_diagonal():
     assert m["FWT"] == pytest.approx(0.0)  # ((0.8 - 0.5) + (0.6 - 0.9)) / 2
     assert m["MEM"] == 2.0 and m["anchors"] == {"high": 2.0, "low": 1.0}
     assert "FWT" not in bm.run_metrics(run)
-    longer = {"R": [[0.5, NAN, NAN], [0.5, 0.5, NAN], [0.5, 0.5, 0.5]]}
+    longer = StreamResults(
+        stream=["a", "b", "c"],
+        R=[[0.5, NAN, NAN], [0.5, 0.5, NAN], [0.5, 0.5, 0.5]],
+        wall_time_s=[],
+    )
     assert "FWT" not in bm.run_metrics(run, longer)  # another stream: no reference
 
 
@@ -205,14 +210,15 @@ def test_aggregate_rows_fwt_per_seed_and_footnote():
     assert [r.method for r in rows] == ["bc-ft1", "hispo", "scn"]
     bc, hispo, scn = rows
     assert hispo.seeds == [0, 1]
-    assert _rounded(hispo.PER) == (0.8, 0.1)  # PER 0.7 and 0.9
-    assert _rounded(hispo.BWT) == (0.0, 0.0)
+    assert _rounded(hispo.metrics["PER"]) == (0.8, 0.1)  # PER 0.7 and 0.9
+    assert _rounded(hispo.metrics["BWT"]) == (0.0, 0.0)
     # FWT seed 0 vs scn seed 0: (0.3 - 0.3)/2 = 0; seed 1 vs scn seed 1: (0.3 - 0.1)/2 = 0.1
-    assert _rounded(hispo.FWT) == (0.05, 0.05) and hispo.fwt_reference == "scn"
-    assert _rounded(hispo.MEM) == (2.0, 0.5)
+    assert _rounded(hispo.metrics["FWT"]) == (0.05, 0.05) and hispo.fwt_reference == "scn"
+    assert _rounded(hispo.metrics["MEM"]) == (2.0, 0.5)
+    assert list(hispo.metrics) == ["PER", "BWT", "FWT", "MEM"]  # the order of METRICS
     assert hispo.anchors == {"high": (2.0, 0.0), "low": (1.5, 0.5)}
-    assert scn.FWT == (0.0, 0.0) and scn.anchors == {}
-    assert bc.FWT is None and bc.MEM is None
+    assert scn.metrics["FWT"] == (0.0, 0.0) and scn.anchors == {}
+    assert "FWT" not in bc.metrics and "MEM" not in bc.metrics
     assert notes == ["bc-ft1: no FWT, no bc-scn or bc-sc1 run (with the same stream) for seed 0"]
 
 
@@ -237,7 +243,7 @@ def test_write_report_from_disk_and_report_only(tmp_path, capsys):
     for r in _records():
         run_dir = tmp_path / "runs" / r.method / f"seed{r.seed}"
         run_dir.mkdir(parents=True)
-        (run_dir / "results.json").write_text(json.dumps(r.results))
+        (run_dir / "results.json").write_text(json.dumps(r.results.to_json()))
         if r.meta:
             (run_dir / "run.json").write_text(json.dumps(r.meta))
     (tmp_path / "runs/hispo/seed7").mkdir()  # unfinished: no results.json, ignored
@@ -265,7 +271,14 @@ def test_write_report_from_disk_and_report_only(tmp_path, capsys):
 
 def test_export_copies_small_files_and_the_report_rebuilds_with_decisions(tmp_path, capsys):
     decisions = [
-        {"task": 0, "subspace": "low", "decision": "first", "l_curr": 0.2, "anchors": 1},
+        {
+            "task": 0,
+            "subspace": "low",
+            "decision": "first",
+            "eps": 0.1,
+            "l_curr": 0.2,
+            "anchors": 1,
+        },
         {
             "task": 1,
             "subspace": "low",
@@ -283,7 +296,7 @@ def test_export_copies_small_files_and_the_report_rebuilds_with_decisions(tmp_pa
     for r in _records():
         run_dir = tmp_path / "runs" / r.method / f"seed{r.seed}"
         run_dir.mkdir(parents=True)
-        (run_dir / "results.json").write_text(json.dumps(r.results))
+        (run_dir / "results.json").write_text(json.dumps(r.results.to_json()))
         (run_dir / "task_01.ckpt").write_bytes(b"weights")  # never exported
         (run_dir / "config.yaml").write_text("seed_everything: 0\n")
         if r.method == "hispo":
@@ -328,9 +341,12 @@ def test_critic_decisions_go_to_their_own_table():
         "anchors": 1,
     }
     loss = {"task": 1, "subspace": "policy", "decision": "keep", "eps": 0.1, "l_prev": 0.3}
+    empty = StreamResults(stream=[], R=[], wall_time_s=[])
     records = [
-        bm.RunRecord("csp", 0, {}, decisions=[critic]),
-        bm.RunRecord("cspo", 0, {}, decisions=[{**loss, "l_curr": 0.2, "anchors": 2}]),
+        bm.RunRecord("csp", 0, empty, decisions=[Decision.from_json(critic)]),
+        bm.RunRecord(
+            "cspo", 0, empty, decisions=[Decision.from_json({**loss, "l_curr": 0.2, "anchors": 2})]
+        ),
     ]
     md = bm.critic_markdown(records, "pointmaze-1")
     row = "| csp | 0 | 2 | 0.5000 | 0.5200 | 0.1 | 1.500 | 0.0100 | 0.2000 | 0.050 | prune | 1 |"

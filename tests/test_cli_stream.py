@@ -75,28 +75,34 @@ def test_stream_fit_prints_metrics_logs_and_resumes(tiny_umaze, tmp_path, capsys
 
 
 def test_decision_lines_name_each_subspaces_decision_and_ratio():
-    from hispo_pl.console import decision_lines
+    from hispo_pl.console import decision_legend, decision_lines
+    from hispo_pl.results import CriticDecision, LossDecision, ZeroShotDecision
 
     records = [
-        {"task": 0, "subspace": "high", "decision": "first", "l_curr": 0.2, "eps": 0.1},
-        {
-            "task": 1,
-            "subspace": "high",
-            "decision": "keep",
-            "l_prev": 0.9,
-            "l_curr": 0.05,
-            "eps": 0.1,
-        },
-        {
-            "task": 1,
-            "subspace": "low",
-            "decision": "prune",
-            "l_prev": 0.21,
-            "l_curr": 0.2,
-            "eps": 0.1,
-        },
-        {"task": 2, "subspace": "low", "decision": "zero-shot", "eps": {"low": 1.0}},
+        LossDecision(task=0, subspace="high", decision="first", l_curr=0.2, eps=0.1, anchors=1),
+        LossDecision(
+            task=1, subspace="high", decision="keep", l_prev=0.9, l_curr=0.05, eps=0.1, anchors=2
+        ),
+        LossDecision(
+            task=1, subspace="low", decision="prune", l_prev=0.21, l_curr=0.2, eps=0.1, anchors=1
+        ),
+        ZeroShotDecision(
+            task=2,
+            subspace="low",
+            decision="zero-shot",
+            pac_rate={"low": 1.0},
+            eps={"low": 1.0},
+            delta=0.1,
+            anchors=1,
+            alpha=[1.0],
+        ),
     ]
+    critic = CriticDecision(
+        task=1, subspace="policy", decision="keep", eps=0.1, anchors=2, w_curr=0.52, w_prev=0.4
+    )
+    assert decision_lines([critic]) == ["task 2: policy keep (W 0.520 vs 0.440)"]
+    assert decision_legend([critic]) == "W_curr vs W_prev + eps |W_prev|"
+    assert decision_legend(records) == "L_prev / L_curr vs 1 + eps"
     assert decision_lines(records) == [
         "task 2: high keep (18.00 vs 1.10), low prune (1.05 vs 1.10)"
     ]

@@ -81,7 +81,7 @@ def test_simplex_title_and_legend_fit_the_picture():
 
 
 def _row(method, mem, per, seeds=(0, 1, 2)):
-    return MethodRow(method, list(seeds), PER=per, BWT=(0.0, 0.0), MEM=mem)
+    return MethodRow(method, list(seeds), {"PER": per, "BWT": (0.0, 0.0), "MEM": mem})
 
 
 def test_perf_vs_memory_has_plain_axes_the_whole_success_range_and_separate_labels():

@@ -230,13 +230,18 @@ def test_grid_end_to_end_exports_derives_and_resumes(tiny_umaze, tmp_path, capsy
     assert "pointmaze-1: 4 done, 0 to run" in printed and "FAILED" not in printed
 
 
-def test_grid_report_embeds_rebuild_from_committed_files(tmp_path):
+def test_grid_report_embeds_rebuild_from_committed_files(tmp_path, monkeypatch):
     pytest.importorskip("rliable")
     root = tmp_path / "results"
     for stream in ("pointmaze-1", "pointmaze-2"):
         shutil.copytree(ROOT / "docs/results" / stream, root / stream)
     grid = gr.grid_from_dict({**GRID, "methods": ["scn", "hispo"], "seeds": 3, "sweeps": {}}, "g")
+    read = []
+    load_records = gp.load_records
+    monkeypatch.setattr(gp, "load_records", lambda out: read.append(out) or load_records(out))
     gp.write_grid_report(grid, root, figures=False)
+    assert sorted(p.name for p in read) == ["pointmaze-1", "pointmaze-2"]  # each read once
+    monkeypatch.undo()
     aggregate = (root / "grid-g/aggregate.md").read_text()
     assert "| scn | 2 of 2 |" in aggregate and "| hispo | 2 of 2 |" in aggregate
     doc = tmp_path / "page.md"
@@ -262,7 +267,7 @@ def test_iqm_interval_is_seeded_and_leaves_numpy_alone():
 
 def test_beside_paper_puts_the_papers_figure_next_to_ours(tmp_path):
     shutil.copytree(ROOT / "docs/results/pointmaze-1/frz", tmp_path / "pointmaze-1/frz")
-    text = gp.beside_paper_markdown(tmp_path)
+    text = gp.beside_paper_markdown(gp.Committed(tmp_path))
     frz = next(line for line in text.splitlines() if line.startswith("| frz | 3 |"))
     assert frz.startswith("| frz | 3 | 34.2 ± 2.6 | 37.8 ± 0.8 |")  # the paper's FZ, Table 6
     assert "| pnn |  | 99.4 ± 0.8 |  | 0.0 ± 0.0 |" in text  # not run here: an empty cell
@@ -275,7 +280,7 @@ def test_summary_bolds_the_best_and_counts_seeds_other_than_three(tmp_path):
             ROOT / f"docs/results/pointmaze-1/{method}", tmp_path / f"pointmaze-1/{method}"
         )
     shutil.copytree(ROOT / "docs/results/pointmaze-1/scn/seed0", tmp_path / "pointmaze-2/scn/seed0")
-    text = gp.summary_markdown(tmp_path)
+    text = gp.summary_markdown(gp.Committed(tmp_path))
     assert "| PointMaze-1 | **99.4 ± 0.1 / 3.37** | 98.8 ± 0.4 / 4.00 | – |" in text
     assert "| PointMaze-2 | – | **99.0 / 4.00 (1 seed)** | – |" in text
     assert text.rstrip().splitlines()[-3].startswith("| VideoGame-2 | – |")

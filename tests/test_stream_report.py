@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from hispo_pl.figures import simplex_figure, success_matrix_figure, to_triangle
+from hispo_pl.results import CriticDecision, LossDecision, StreamResults, ZeroShotDecision
 from hispo_pl.stream_report import (
     alpha_metrics,
     anchors_markdown,
@@ -31,7 +32,9 @@ def test_task_row_metrics_cover_every_task_and_the_mean_of_those_seen():
 
 
 def test_stream_and_alpha_metrics():
-    results = {"PER": 0.9, "BWT": -0.012, "FWT": None, "MEM": 2.07}
+    results = StreamResults(
+        stream=["a"], R=[[0.9]], wall_time_s=[1.0], metrics={"PER": 0.9, "BWT": -0.012, "MEM": 2.07}
+    )
     assert stream_metrics(results) == pytest.approx(  # success in %, MEM a ratio
         {"stream/PER": 90.0, "stream/BWT": -1.2, "stream/MEM": 2.07}
     )
@@ -51,20 +54,21 @@ def test_tables():
     ]
     rows = decisions_markdown(
         [
-            {"task": 0, "subspace": "low", "decision": "first", "l_curr": 0.2, "eps": 0.1},
-            {
-                "task": 1,
-                "subspace": "low",
-                "decision": "prune",
-                "l_prev": 0.21,
-                "l_curr": 0.2,
-                "eps": 0.1,
-                "anchors": 1,
-            },
+            LossDecision(task=0, subspace="low", decision="first", l_curr=0.2, eps=0.1, anchors=1),
+            LossDecision(
+                task=1,
+                subspace="low",
+                decision="prune",
+                l_prev=0.21,
+                l_curr=0.2,
+                eps=0.1,
+                anchors=1,
+            ),
         ]
     ).splitlines()
-    assert rows[2].startswith("| T01 | low | first |  | 0.2000 |  | 1.10 |")
-    assert rows[3] == "| T02 | low | prune | 0.2100 | 0.2000 | 1.050 | 1.10 | 1 |"
+    assert rows[0].startswith("| task | subspace | L_prev | L_curr | L_prev / L_curr | ε |")
+    assert rows[2] == "| 1 | low |  | 0.2000 |  | 0.1 |  |  | first | 1 |"
+    assert rows[3] == "| 2 | low | 0.2100 | 0.2000 | 1.050 | 0.1 |  |  | prune | 1 |"
 
 
 def test_figures():
@@ -81,23 +85,13 @@ def test_console_lines():
 
     assert [duration(s) for s in (52, 247, 3725)] == ["52s", "4m07s", "1h02m"]
     decisions = [
-        {
-            "task": 1,
-            "subspace": "high",
-            "decision": "keep",
-            "l_prev": 0.9,
-            "l_curr": 0.05,
-            "eps": 0.1,
-        },
-        {
-            "task": 1,
-            "subspace": "low",
-            "decision": "prune",
-            "l_prev": 0.21,
-            "l_curr": 0.2,
-            "eps": 0.1,
-        },
-        {"task": 0, "subspace": "low", "decision": "first", "l_curr": 0.2, "eps": 0.1},
+        LossDecision(
+            task=1, subspace="high", decision="keep", l_prev=0.9, l_curr=0.05, eps=0.1, anchors=2
+        ),
+        LossDecision(
+            task=1, subspace="low", decision="prune", l_prev=0.21, l_curr=0.2, eps=0.1, anchors=1
+        ),
+        LossDecision(task=0, subspace="low", decision="first", l_curr=0.2, eps=0.1, anchors=1),
     ]
     assert task_summary(1, 4, 247, [1.0, 0.82, 0.1, 0.0], decisions) == (
         "task 2/4 done in 4m07s: success 82 % (earlier tasks: mean 100 %); "
@@ -110,18 +104,30 @@ def test_console_lines():
     assert task_summary(0, 4, 247, [0.97, 0.1, 0.0, 0.0], decisions, phases) == (
         "task 1/4 done in 4m07s (training 2m30s, evaluation 1m01s, search 30s): success 97 %"
     )
-    critic = {"task": 2, "subspace": "policy", "decision": "prune", "rule": "critic", "eps": 0.1}
-    critic |= {"w_prev": -0.5, "w_curr": -0.48, "l_prev": 0.3, "l_curr": 0.1}
+    critic = CriticDecision(task=2, subspace="policy", decision="prune", eps=0.1, anchors=1)
+    critic.w_prev, critic.w_curr, critic.l_prev, critic.l_curr = -0.5, -0.48, 0.3, 0.1
     assert task_summary(2, 4, 52, [1.0, 1.0, 1.0, 0.0], [critic]).endswith(
         "; policy prune (W -0.480 vs -0.450)"  # the critic's bar, not the losses' ratio
     )
 
 
-def test_zero_shot_records_have_no_pruning_tolerance():
-    row = decisions_markdown(
-        [{"task": 1, "subspace": "low", "decision": "zero-shot", "eps": {"low": 1.0}}]
-    ).splitlines()[2]
-    assert row == "| T02 | low | zero-shot |  |  |  |  |  |"
+def test_each_kind_of_decision_gets_its_own_table():
+    zero_shot = ZeroShotDecision(
+        task=1,
+        subspace="low",
+        decision="zero-shot",
+        pac_rate={"low": 0.97},
+        eps={"low": 1.0},
+        delta=0.05,
+        anchors=1,
+        alpha=[1.0],
+    )
+    critic = CriticDecision(task=1, subspace="policy", decision="keep", eps=0.1, anchors=2)
+    critic.w_prev, critic.w_curr = 0.4, 0.52
+    tables = decisions_markdown([zero_shot, critic]).split("\n\n")
+    assert tables[0].splitlines()[0].startswith("| task | W_prev | W_curr | ε |")
+    assert tables[1].splitlines()[2] == "| 2 | low | low 0.970 | 0.95 | zero-shot | 1 |"
+    assert chosen_hparams({}, [zero_shot, critic]) == {"eps_policy": 0.1}  # no PAC tolerance
 
 
 FINGERPRINT = {  # a stream run's flat settings, as the loop stores them
@@ -143,10 +149,10 @@ FINGERPRINT = {  # a stream run's flat settings, as the loop stores them
     "preset": None,
 }
 DECISIONS = [
-    {"task": 0, "subspace": "high", "decision": "first", "eps": 0.1, "anchors": 1},
-    {"task": 0, "subspace": "low", "decision": "first", "eps": 0.6, "anchors": 1},
-    {"task": 1, "subspace": "high", "decision": "prune", "eps": 0.1, "anchors": 1},
-    {"task": 1, "subspace": "low", "decision": "keep", "eps": 0.6, "anchors": 2},
+    LossDecision(task=0, subspace="high", decision="first", eps=0.1, anchors=1),
+    LossDecision(task=0, subspace="low", decision="first", eps=0.6, anchors=1),
+    LossDecision(task=1, subspace="high", decision="prune", eps=0.1, anchors=1),
+    LossDecision(task=1, subspace="low", decision="keep", eps=0.6, anchors=2),
 ]
 
 
@@ -164,7 +170,7 @@ def test_hparams_hold_the_settings_a_user_chose_by_name():
         "eps_high": 0.1,  # the tolerance applied, where the setting says None (family default)
         "eps_low": 0.6,
     }
-    zero_shot = [{"task": 1, "subspace": "low", "decision": "zero-shot", "eps": {"low": 1.0}}]
+    zero_shot = [ZeroShotDecision(task=1, subspace="low", decision="zero-shot", eps={"low": 1.0})]
     assert "eps_low" not in chosen_hparams(FINGERPRINT, zero_shot)
 
 

@@ -49,7 +49,6 @@ from .records import (
     format_mean_std,
     load_records,
     mean_std,
-    results_matrix,
     run_metrics,
     scratch_method_for,
 )
@@ -63,7 +62,6 @@ from .report import (
     write_report,
 )
 from .tables import (
-    SCALED,
     critic_markdown,
     decisions_markdown,
     runtime_csv,
@@ -81,7 +79,6 @@ __all__ = [
     "RUNS_DIR",
     "Reporter",
     "RunRecord",
-    "SCALED",
     "TAIL_LINES",
     "aggregate",
     "build_parser",
@@ -107,7 +104,6 @@ __all__ = [
     "plot_perf_vs_memory",
     "prepare_datasets",
     "record_status",
-    "results_matrix",
     "run_env",
     "run_local",
     "run_metrics",

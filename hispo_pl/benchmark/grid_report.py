@@ -15,10 +15,11 @@ from pathlib import Path
 import numpy as np
 
 from ..io import atomic_write_text
+from ..metrics import METRIC, METRICS
 from ..rundir import RunDir
 from . import paper
 from .grid import GRID_FILE, SWEEPS_DIR, Grid
-from .records import RunRecord, load_records, mean_std, per_run_metrics
+from .records import MethodRow, RunRecord, aggregate, load_records, mean_std, per_run_metrics
 from .tables import run_minutes
 
 BOOTSTRAP_REPS = 2000  # stratified bootstrap resamples per interval
@@ -30,11 +31,33 @@ def report_dir(grid: Grid, root: Path) -> Path:
     return Path(root) / f"grid-{grid.name}"
 
 
-def stream_records(root: Path, stream: str) -> list[RunRecord]:
-    """The finished runs committed for ``stream`` under ``root`` (none if it has no folder)."""
-    if not (Path(root) / stream).is_dir():
-        return []
-    return load_records(Path(root) / stream)[0]
+class Committed:
+    """The runs committed under ``root``: each stream's read once and measured once, for every
+    report of a grid."""
+
+    def __init__(self, root: Path):
+        self.root = Path(root)
+        self._measured: dict[str, list[tuple[RunRecord, dict, str | None]]] = {}
+        self._rows: dict[str, dict[str, MethodRow]] = {}
+
+    def measured(self, stream: str) -> list[tuple[RunRecord, dict, str | None]]:
+        """Each finished run of ``stream`` with its metrics and FWT reference
+        (:func:`~.records.per_run_metrics`); none if the stream has no folder."""
+        if stream not in self._measured:
+            folder = self.root / stream
+            records = load_records(folder)[0] if folder.is_dir() else []
+            self._measured[stream] = per_run_metrics(records)
+        return self._measured[stream]
+
+    def records(self, stream: str) -> list[RunRecord]:
+        return [r for r, _, _ in self.measured(stream)]
+
+    def methods(self, stream: str) -> dict[str, MethodRow]:
+        """Per method of ``stream``: its metrics' mean ± std over seeds (:func:`aggregate`)."""
+        if stream not in self._rows:
+            rows, _ = aggregate(self.records(stream), self.measured(stream))
+            self._rows[stream] = {row.method: row for row in rows}
+        return self._rows[stream]
 
 
 @contextmanager
@@ -69,47 +92,38 @@ def iqm_interval(scores: np.ndarray, reps: int = BOOTSTRAP_REPS) -> tuple[float,
 
 @dataclass
 class AggregateRow:
-    """One method over the streams where it has every seed of the grid."""
+    """One method over the streams where it has every seed of the grid: the mean of each
+    metric ×100 (a ratio for MEM) that every run has, and the IQM of PER."""
 
     method: str
     streams: list[str]
-    PER: float
-    BWT: float
-    FWT: float | None
-    MEM: float | None
+    means: dict[str, float]
     iqm: tuple[float, float, float]  # PER ×100: point, low, high
 
 
-def aggregate_rows(grid: Grid, by_stream: dict[str, list[RunRecord]]) -> list[AggregateRow]:
-    """Per method of the grid: the mean of PER, BWT, FWT (×100) and MEM over its runs on the
-    streams where it has all the grid's seeds (the paper's Table 1 averages the same way), and
-    the IQM of PER over those streams × seeds with its interval."""
+def aggregate_rows(grid: Grid, committed: Committed) -> list[AggregateRow]:
+    """Per method of the grid: the mean of each metric over its runs on the streams where it
+    has all the grid's seeds (the paper's Table 1 averages the same way), and the IQM of PER
+    over those streams × seeds with its interval."""
     measured: dict[tuple[str, str], dict[int, dict]] = {}
-    for stream, records in by_stream.items():
-        for record, metrics, _ in per_run_metrics(records):
+    for stream in grid.streams:
+        for record, metrics, _ in committed.measured(stream):
             measured.setdefault((stream, record.method), {})[record.seed] = metrics
     rows = []
     for method in grid.methods:
-        streams = [s for s in by_stream if set(grid.seeds) <= set(measured.get((s, method), {}))]
+        streams = [s for s in grid.streams if set(grid.seeds) <= set(measured.get((s, method), {}))]
         if not streams:
             continue
         runs = [measured[(s, method)][seed] for s in streams for seed in grid.seeds]
         scores = np.array(
             [[100 * measured[(s, method)][seed]["PER"] for s in streams] for seed in grid.seeds]
         )
-        rows.append(
-            AggregateRow(
-                method,
-                streams,
-                float(np.mean([100 * m["PER"] for m in runs])),
-                float(np.mean([100 * m["BWT"] for m in runs])),
-                float(np.mean([100 * m["FWT"] for m in runs]))
-                if all("FWT" in m for m in runs)
-                else None,
-                float(np.mean([m["MEM"] for m in runs])) if all("MEM" in m for m in runs) else None,
-                iqm_interval(scores),
-            )
-        )
+        means = {
+            m.name: float(np.mean([m.scale * r[m.name] for r in runs]))
+            for m in METRICS
+            if all(m.name in r for r in runs)
+        }
+        rows.append(AggregateRow(method, streams, means, iqm_interval(scores)))
     return rows
 
 
@@ -120,18 +134,18 @@ def _num(value: float | None, digits: int = 1) -> str:
 def aggregate_markdown(grid: Grid, rows: Sequence[AggregateRow]) -> str:
     """The paper's Table 1 over the grid's streams, with IQM intervals and the paper's row."""
     n_streams = len(grid.streams)
+    names = " | ".join(m.name for m in METRICS)
     lines = [
         f"# Aggregate: grid {grid.name}\n",
-        "| method | streams | PER | BWT | FWT | MEM | PER IQM [95 % CI] | paper PER | paper BWT "
-        "| paper FWT |",
-        "|---|---:|---:|---:|---:|---:|---|---:|---:|---:|",
+        f"| method | streams | {names} | PER IQM [95 % CI] | paper PER | paper BWT | paper FWT |",
+        "|---|---:|" + "---:|" * len(METRICS) + "---|---:|---:|---:|",
     ]
     for row in rows:
         ours = paper.AGGREGATE.get(row.method)
         point, low, high = row.iqm
+        means = " | ".join(_num(row.means.get(m.name), m.digits) for m in METRICS)
         lines.append(
-            f"| {row.method} | {len(row.streams)} of {n_streams} | {_num(row.PER)} | "
-            f"{_num(row.BWT)} | {_num(row.FWT)} | {_num(row.MEM, 2)} | "
+            f"| {row.method} | {len(row.streams)} of {n_streams} | {means} | "
             f"{point:.1f} [{low:.1f}, {high:.1f}] | "
             + " | ".join(_num(v) for v in (ours or (None, None, None)))
             + " |"
@@ -151,28 +165,24 @@ def _stat(value: tuple[float, float] | None, digits: int = 1) -> str:
     return "" if value is None else f"{value[0]:.{digits}f} ± {value[1]:.{digits}f}"
 
 
-def _ours(records: Sequence[RunRecord]) -> dict[str, dict[str, tuple[float, float] | None]]:
-    """Per method: (mean, std) of PER, BWT, FWT ×100 and MEM over its seeds."""
-    by_method: dict[str, list[dict]] = {}
-    for record, metrics, _ in per_run_metrics(records):
-        by_method.setdefault(record.method, []).append(metrics)
-    found = {}
-    for method, runs in by_method.items():
-        cells: dict[str, tuple[float, float] | None] = {}
-        for name, scale in (("PER", 100), ("BWT", 100), ("FWT", 100), ("MEM", 1)):
-            values = [scale * m[name] for m in runs if name in m]
-            cells[name] = mean_std(values) if len(values) == len(runs) else None
-        cells["seeds"] = (len(runs), 0.0)
-        found[method] = cells
-    return found
+def _ours(row: MethodRow | None, name: str) -> str:
+    """Our metric ``name`` of a method's row as the paper prints its own: mean ± std ×100 (a
+    ratio for MEM), one seed's value alone; empty where not run."""
+    value = None if row is None else row.metrics.get(name)
+    if value is None:
+        return ""
+    metric = METRIC[name]
+    if len(row.seeds) == 1:
+        return metric.format(value[0])
+    return f"{metric.format(value[0])} ± {metric.format(value[1])}"
 
 
-def beside_paper_markdown(root: Path) -> str:
+def beside_paper_markdown(committed: Committed) -> str:
     """The paper's per-stream tables (its Tables 6–8) and its AntMaze ablation (Table 2) with
     our committed figures in the column next to each of its own; empty where not run."""
     lines = ["# Beside the paper\n"]
     for stream, table in paper.PER_STREAM.items():
-        ours = _ours(stream_records(root, stream))
+        ours = committed.methods(stream)
         table_no = {"pointmaze": 6, "antmaze": 7, "videogame": 8}[stream.split("-")[0]]
         lines += [
             f"### {stream} (the paper's Table {table_no})\n",
@@ -182,31 +192,19 @@ def beside_paper_markdown(root: Path) -> str:
         ]
         for method in [*table, *sorted(set(ours) - set(table))]:
             theirs = paper.paper_row(stream, method) or {}
-            mine = ours.get(method, {})
-            cells = []
-            for name in paper.METRICS:
-                digits = 2 if name == "MEM" else 1
-                seeds = mine.get("seeds", (0, 0))[0]
-                here = mine.get(name)
-                text = (
-                    ""
-                    if here is None
-                    else (f"{here[0]:.{digits}f}" if seeds == 1 else _stat(here, digits))
-                )
-                cells += [_stat(theirs.get(name), 1), text]
-            seeds = mine.get("seeds")
-            lines.append(
-                f"| {method} | {'' if seeds is None else seeds[0]} | " + " | ".join(cells) + " |"
-            )
+            mine = ours.get(method)
+            cells = [c for n in paper.METRICS for c in (_stat(theirs.get(n)), _ours(mine, n))]
+            seeds = "" if mine is None else len(mine.seeds)
+            lines.append(f"| {method} | {seeds} | " + " | ".join(cells) + " |")
         lines.append("")
-    antmaze = [r for s in ("antmaze-1", "antmaze-2") for r in stream_records(root, s)]
+    antmaze = [run for s in ("antmaze-1", "antmaze-2") for run in committed.measured(s)]
     lines += [
         "### AntMaze ablation (the paper's Table 2)\n",
         "| method | runs here | PER paper | PER here | MEM paper | MEM here |",
         "|---|---:|---:|---:|---:|---:|",
     ]
     for method, (per, mem) in paper.ANTMAZE_ABLATION.items():
-        mine = [m for r, m, _ in per_run_metrics(antmaze) if r.method == method]
+        mine = [m for r, m, _ in antmaze if r.method == method]
         here_per = mean_std([100 * m["PER"] for m in mine]) if mine else None
         here_mem = mean_std([m["MEM"] for m in mine]) if mine else None
         lines.append(
@@ -229,7 +227,7 @@ NAMES = {"hispo": "HiSPO", "scn": "SCN", "ftn": "FTN", "pnn": "PNN", "cspo": "CS
 NAMES |= {"csp": "CSP", "hilow": "HiLOW"}
 
 
-def summary_markdown(root: Path) -> str:
+def summary_markdown(committed: Committed) -> str:
     """Where HiSPO stands: PER / MEM of the subspace methods and the expanding baselines on
     every stream of the paper's tables, the best PER of a row in bold, the paper's HiSPO in the
     last column."""
@@ -240,21 +238,21 @@ def summary_markdown(root: Path) -> str:
         "|---|" + "---|" * (len(SUMMARY_METHODS) + 1),
     ]
     for stream in paper.PER_STREAM:
-        ours = _ours(stream_records(root, stream))
-        pers = [ours[m]["PER"][0] for m in SUMMARY_METHODS if m in ours and ours[m]["PER"]]
-        best = max(pers, default=None)
+        ours = {m: row for m, row in committed.methods(stream).items() if m in SUMMARY_METHODS}
+        best = max((row.metrics["PER"][0] for row in ours.values()), default=None)
         cells = []
         for method in SUMMARY_METHODS:
             row = ours.get(method)
-            if row is None or row["PER"] is None:
+            if row is None:
                 cells.append("–")
                 continue
-            seeds = int(row["seeds"][0])
-            per = f"{row['PER'][0]:.1f}" if seeds == 1 else _stat(row["PER"])
-            text = per + ("" if row["MEM"] is None else f" / {row['MEM'][0]:.2f}")
+            seeds = len(row.seeds)
+            text = _ours(row, "PER")
+            if "MEM" in row.metrics:
+                text += f" / {METRIC['MEM'].format(row.metrics['MEM'][0])}"
             if seeds != 3:
                 text += f" ({seeds} seed{'s' if seeds > 1 else ''})"
-            cells.append(f"**{text}**" if row["PER"][0] == best else text)
+            cells.append(f"**{text}**" if row.metrics["PER"][0] == best else text)
         theirs = paper.paper_row(stream, "hispo")
         reference = f"{theirs['PER'][0]:.1f} / {theirs['MEM'][0]:.1f}" if theirs else ""
         title = stream.replace("pointmaze", "PointMaze").replace("antmaze", "AntMaze")
@@ -270,7 +268,7 @@ def summary_markdown(root: Path) -> str:
 
 def sweep_per(root: Path, stream: str, label: str, seed: int) -> float | None:
     run = RunDir(Path(root) / stream / SWEEPS_DIR / label / f"seed{seed}")
-    return float(run.read_results()["PER"]) if run.has_results() else None
+    return float(run.stream_results().metrics["PER"]) if run.has_results() else None
 
 
 def sweeps_markdown(grid: Grid, root: Path) -> str:
@@ -305,19 +303,20 @@ def sweeps_markdown(grid: Grid, root: Path) -> str:
     return "\n".join(lines) + legend
 
 
-def cost_markdown(grid: Grid, root: Path) -> str:
+def cost_markdown(grid: Grid, committed: Committed) -> str:
     """What the committed runs of the grid cost: wall hours per method (sweeps included) and
     the share of training, in-fit evaluation and the subspace search."""
     per_method: dict[str, list[RunRecord]] = {}
     for stream in grid.streams:
-        for record in stream_records(root, stream):
+        for record in committed.records(stream):
             if record.method in grid.methods:
                 per_method.setdefault(record.method, []).append(record)
-        for seed_dir in sorted((Path(root) / stream / SWEEPS_DIR).glob("*/seed*")):
+        for seed_dir in sorted((committed.root / stream / SWEEPS_DIR).glob("*/seed*")):
             run = RunDir(seed_dir)
             if run.has_results():
                 method = seed_dir.parent.name.split("-")[0]
-                per_method.setdefault(method, []).append(RunRecord(method, 0, run.read_results()))
+                results = run.stream_results()
+                per_method.setdefault(method, []).append(RunRecord(method, 0, results))
     lines = [
         f"# Cost: grid {grid.name}\n",
         "| method | runs | hours | minutes per run | training | evaluation | search |",
@@ -329,7 +328,7 @@ def cost_markdown(grid: Grid, root: Path) -> str:
         minutes = sum(run_minutes(r) for r in records)
         phases = {p: 0.0 for p in PHASES}
         for r in records:
-            for task in r.results.get("phase_time_s") or []:
+            for task in r.results.phase_time_s or []:
                 for p in PHASES:
                     phases[p] += float(task.get(p, 0.0))
         spent = sum(phases.values()) or 1.0
@@ -354,33 +353,12 @@ def cost_markdown(grid: Grid, root: Path) -> str:
 
 
 def plot_iqm_vs_memory(rows: Sequence[AggregateRow], path: Path, title: str) -> bool:
-    """PER's IQM with its interval against mean MEM, one marker per method."""
+    """PER's IQM with its interval against mean MEM (False: no matplotlib)."""
     try:
-        from matplotlib.figure import Figure
+        from ..figures import iqm_vs_memory_figure
     except ImportError:
         return False
-    fig = Figure(figsize=(6.4, 4.6))
-    ax = fig.add_subplot()
-    markers = "osD^vP*Xh<>p"
-    for i, row in enumerate(r for r in rows if r.MEM is not None):
-        point, low, high = row.iqm
-        ax.errorbar(
-            row.MEM,
-            point,
-            yerr=[[point - low], [high - point]],
-            fmt=markers[i % len(markers)],
-            capsize=3,
-            label=f"{row.method} ({len(row.streams)} streams)",
-        )
-    ax.ticklabel_format(useOffset=False)
-    ax.set_ylim(0, 102)  # room for the markers at 100 %
-    ax.set_xlabel("MEM (mean stored size / one single-task model)")
-    ax.set_ylabel("PER IQM (success %), 95 % CI")
-    ax.set_title(title, fontsize=10)
-    ax.grid(alpha=0.3)
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=7, loc="lower right")
-    fig.savefig(path, dpi=150, bbox_inches="tight")
+    iqm_vs_memory_figure(rows, title).savefig(path, dpi=150, bbox_inches="tight")
     return True
 
 
@@ -389,14 +367,14 @@ REPORTS = ("summary.md", "aggregate.md", "beside-paper.md", "sweeps.md", "cost.m
 
 def grid_reports(grid: Grid, root: Path) -> tuple[dict[str, str], list[AggregateRow]]:
     """Every report's text (by file name; empty reports left out) and the aggregate rows."""
-    by_stream = {s: stream_records(root, s) for s in grid.streams}
-    rows = aggregate_rows(grid, by_stream)
+    committed = Committed(root)
+    rows = aggregate_rows(grid, committed)
     texts = {
-        "summary.md": summary_markdown(root),
+        "summary.md": summary_markdown(committed),
         "aggregate.md": aggregate_markdown(grid, rows),
-        "beside-paper.md": beside_paper_markdown(root),
+        "beside-paper.md": beside_paper_markdown(committed),
         "sweeps.md": sweeps_markdown(grid, root),
-        "cost.md": cost_markdown(grid, root),
+        "cost.md": cost_markdown(grid, committed),
     }
     return {k: v for k, v in texts.items() if v}, rows
 

@@ -45,7 +45,7 @@ def estimated_minutes(cell: Cell, root: Path, streams: Sequence[str]) -> float |
             for seed_dir in sorted((Path(root) / stream).glob(pattern)):
                 run = RunDir(seed_dir)
                 if run.has_results():
-                    found.append(run_minutes(RunRecord("", 0, run.read_results())))
+                    found.append(run_minutes(RunRecord("", 0, run.stream_results())))
         return sum(found) / len(found) if found else None
 
     for pattern, where in (

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RunDirError
-from ..metrics import continual_metrics
+from ..metrics import METRICS, continual_metrics
+from ..results import Decision, StreamResults, fwt_reference
 from ..rundir import RunDir
 from .plan import PLAN_FILE, RUNS_DIR
 
@@ -22,9 +23,9 @@ class RunRecord:
 
     method: str
     seed: int
-    results: dict
+    results: StreamResults
     meta: dict = field(default_factory=dict)
-    decisions: list[dict] = field(default_factory=list)
+    decisions: list[Decision] = field(default_factory=list)
 
 
 def finished_run_dirs(out: Path, results: str = RunDir.RESULTS) -> list[Path]:
@@ -52,12 +53,12 @@ def load_records(out: Path) -> tuple[list[RunRecord], list[str]]:
             continue
         run = RunDir(seed_dir)
         try:
-            meta, results = run.read_run_record(), run.read_results()
+            meta, results = run.read_run_record(), run.stream_results()
         except RunDirError as err:
             unreadable.append(f"{seed_dir.parent.name}/{seed_dir.name}: {err}")
             continue
-        records.append(RunRecord(seed_dir.parent.name, seed, results, meta, run.read_decisions()))
-    streams = {tuple(r.results["stream"]): r for r in records}
+        records.append(RunRecord(seed_dir.parent.name, seed, results, meta, run.decisions()))
+    streams = {tuple(r.results.stream): r for r in records}
     if len(streams) > 1:
         (a, first), (b, second) = list(streams.items())[:2]
         raise RunDirError(
@@ -98,27 +99,17 @@ def scratch_method_for(method: str, available: Iterable[str]) -> str | None:
     return None
 
 
-def results_matrix(results: dict) -> np.ndarray:
-    """``results["R"]`` as a float array, NaN where JSON has null (above the diagonal)."""
-    return np.array(
-        [[np.nan if v is None else v for v in row] for row in results["R"]], dtype=float
-    )
-
-
-def run_metrics(results: dict, scratch_results: dict | None = None) -> dict:
-    """PER, BWT (from R), FWT (against the diagonal of ``scratch_results``'s R, when given
-    and of the same size), MEM and anchors (when the run has them). Fractions, not ×100."""
-    R = results_matrix(results)
-    scratch = None
-    if scratch_results is not None:
-        R_scratch = results_matrix(scratch_results)
-        if R_scratch.shape == R.shape:
-            scratch = np.diagonal(R_scratch)
-    out: dict = continual_metrics(R, scratch)
-    if results.get("MEM") is not None:
-        out["MEM"] = float(results["MEM"])
-    if results.get("anchors"):
-        out["anchors"] = {k: float(v) for k, v in results["anchors"].items()}
+def run_metrics(results: StreamResults, scratch_results: StreamResults | None = None) -> dict:
+    """Every metric of :data:`~hispo_pl.metrics.METRICS` of a run: those of R by
+    :func:`~hispo_pl.metrics.continual_metrics` (FWT against ``scratch_results``'s diagonal,
+    :func:`~hispo_pl.results.fwt_reference`), those measured on the model as the run recorded
+    them; and its anchors. Fractions, not ×100."""
+    out: dict = continual_metrics(results.matrix, fwt_reference(scratch_results, len(results.R)))
+    for metric in METRICS:
+        if metric.of_model and results.metrics.get(metric.name) is not None:
+            out[metric.name] = float(results.metrics[metric.name])
+    if results.anchors:
+        out["anchors"] = {k: float(v) for k, v in results.anchors.items()}
     return out
 
 
@@ -135,15 +126,13 @@ def format_mean_std(mean: float, std: float, scale: float = 100.0, digits: int =
 
 @dataclass
 class MethodRow:
-    """One method's line of the table: metrics as (mean, std) over seeds, in fractions (PER,
-    BWT, FWT) or ratios (MEM, anchors); None where no seed has it."""
+    """One method's line of the table: each metric of :data:`~hispo_pl.metrics.METRICS` that
+    every seed has, as (mean, std) over seeds in fractions (PER, BWT, FWT) or ratios (MEM);
+    the anchors per subspace; the run FWT was measured against."""
 
     method: str
     seeds: list[int]
-    PER: tuple[float, float]
-    BWT: tuple[float, float]
-    FWT: tuple[float, float] | None = None
-    MEM: tuple[float, float] | None = None
+    metrics: dict[str, tuple[float, float]] = field(default_factory=dict)
     anchors: dict[str, tuple[float, float]] = field(default_factory=dict)
     fwt_reference: str | None = None
 
@@ -162,26 +151,26 @@ def per_run_metrics(records: Sequence[RunRecord]) -> list[tuple[RunRecord, dict,
     return found
 
 
-def aggregate(records: Sequence[RunRecord]) -> tuple[list[MethodRow], list[str]]:
-    """One row per method (sorted) and footnotes.
+def aggregate(
+    records: Sequence[RunRecord], measured: Sequence[tuple[RunRecord, dict, str | None]] = ()
+) -> tuple[list[MethodRow], list[str]]:
+    """One row per method (sorted) and footnotes; ``measured``: :func:`per_run_metrics` of
+    ``records``, when the caller has it already.
 
     FWT of a method uses, for each seed, the R diagonal of the from-scratch run of the same
     seed (:func:`scratch_method_for`); it is left empty, with a footnote, unless every seed of
     the method has one.
     """
-    measured = per_run_metrics(records)
+    measured = measured or per_run_metrics(records)
     rows, notes = [], []
     for method in sorted({r.method for r in records}):
         mine = [(r, m, ref) for r, m, ref in measured if r.method == method]
         metrics = [m for _, m, _ in mine]
-        references = {ref for _, m, ref in mine if "FWT" in m}
+        row = MethodRow(method, [r.seed for r, _, _ in mine])
+        for metric in METRICS:
+            if all(metric.name in m for m in metrics):
+                row.metrics[metric.name] = mean_std([m[metric.name] for m in metrics])
         missing = [r.seed for r, m, _ in mine if "FWT" not in m]
-        row = MethodRow(
-            method,
-            [r.seed for r, _, _ in mine],
-            mean_std([m["PER"] for m in metrics]),
-            mean_std([m["BWT"] for m in metrics]),
-        )
         if missing:
             prefix = "bc-" if method.startswith("bc-") else ""
             seeds = ", ".join(str(s) for s in missing)
@@ -190,10 +179,7 @@ def aggregate(records: Sequence[RunRecord]) -> tuple[list[MethodRow], list[str]]
                 f"for seed {seeds}"
             )
         else:
-            row.FWT = mean_std([m["FWT"] for m in metrics])
-            row.fwt_reference = ", ".join(sorted(references))
-        if all("MEM" in m for m in metrics):
-            row.MEM = mean_std([m["MEM"] for m in metrics])
+            row.fwt_reference = ", ".join(sorted({ref for _, _, ref in mine}))
         names = sorted({k for m in metrics for k in m.get("anchors", {})})
         for name in names:
             if all(name in m.get("anchors", {}) for m in metrics):

@@ -14,7 +14,7 @@ from ..io import atomic_write_text
 from ..rundir import RunDir
 from .grid import GRID_FILE
 from .plan import PLAN_FILE, RUNS_DIR
-from .records import MethodRow, RunRecord, aggregate, load_records, results_matrix
+from .records import MethodRow, RunRecord, aggregate, load_records
 from .tables import (
     before_training_markdown,
     critic_markdown,
@@ -53,8 +53,8 @@ def plot_success_matrices(records: Sequence[RunRecord], out: Path) -> list[Path]
     by_method: dict[str, list[np.ndarray]] = {}
     tasks: dict[str, list[str]] = {}
     for record in records:
-        by_method.setdefault(record.method, []).append(results_matrix(record.results))
-        tasks.setdefault(record.method, list(record.results["stream"]))
+        by_method.setdefault(record.method, []).append(record.results.matrix)
+        tasks.setdefault(record.method, list(record.results.stream))
     written = []
     for method, matrices in sorted(by_method.items()):
         if len({m.shape for m in matrices}) != 1:

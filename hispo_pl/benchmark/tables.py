@@ -9,10 +9,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..metrics import METRICS
+from ..results import CriticDecision, Decision, LossDecision, decisions_table
 from ..tasks import parse_task
-from .records import MethodRow, RunRecord, format_mean_std, results_matrix
-
-SCALED = ("PER", "BWT", "FWT")  # success fractions, reported ×100 like the paper
+from .records import MethodRow, RunRecord, format_mean_std
 
 
 def _cell(value: tuple[float, float] | None, scale: float, digits: int, seeds: int = 2) -> str:
@@ -25,20 +25,23 @@ def _cell(value: tuple[float, float] | None, scale: float, digits: int, seeds: i
 
 
 def table_markdown(rows: Sequence[MethodRow], notes: Sequence[str], stream: str = "") -> str:
-    """The paper's table: PER, BWT, FWT ×100 and MEM as mean ± std over seeds, anchors."""
+    """The paper's table: each metric of :data:`~hispo_pl.metrics.METRICS` as mean ± std over
+    seeds (PER, BWT, FWT ×100, MEM a ratio), anchors."""
     title = f"# Benchmark{': ' + stream if stream else ''}\n\n"
     lines = [
-        "| method | seeds | PER | BWT | FWT | MEM | anchors |",
-        "|---|---:|---:|---:|---:|---:|---|",
+        "| method | seeds | " + " | ".join(m.name for m in METRICS) + " | anchors |",
+        "|---|---:|" + "---:|" * len(METRICS) + "---|",
     ]
     for row in rows:
         n = len(row.seeds)
         anchors = ", ".join(f"{k} {_cell(v, 1, 1, n)}" for k, v in row.anchors.items())
-        fwt = _cell(row.FWT, 100, 1, n) + ("" if row.FWT is not None or not notes else " ¹")
-        lines.append(
-            f"| {row.method} | {n} | {_cell(row.PER, 100, 1, n)} | {_cell(row.BWT, 100, 1, n)} "
-            f"| {fwt.strip()} | {_cell(row.MEM, 1, 2, n)} | {anchors} |"
-        )
+        cells = []
+        for m in METRICS:
+            cell = _cell(row.metrics.get(m.name), m.scale, m.digits, n)
+            if m.name == "FWT" and "FWT" not in row.metrics and notes:
+                cell = (cell + " ¹").strip()
+            cells.append(cell)
+        lines.append(f"| {row.method} | {n} | " + " | ".join(cells) + f" | {anchors} |")
     legend = (
         "\nPER, BWT, FWT: success ×100, mean ± std (population) over seeds (one seed: its "
         "value); MEM: stored size "
@@ -55,7 +58,7 @@ def table_csv(rows: Sequence[MethodRow]) -> str:
     ×100; MEM and anchors as ratios / counts), empty where unknown."""
     anchor_names = sorted({k for row in rows for k in row.anchors})
     header = ["method", "seeds"]
-    for name in [*SCALED, "MEM", *(f"anchors_{a}" for a in anchor_names)]:
+    for name in [*(m.name for m in METRICS), *(f"anchors_{a}" for a in anchor_names)]:
         header += [f"{name}_mean", f"{name}_std"]
     header.append("fwt_reference")
     buf = io.StringIO()
@@ -63,82 +66,48 @@ def table_csv(rows: Sequence[MethodRow]) -> str:
     writer.writerow(header)
     for row in rows:
         cells: list = [row.method, len(row.seeds)]
-        values = [row.PER, row.BWT, row.FWT, row.MEM, *(row.anchors.get(a) for a in anchor_names)]
-        scales = [100, 100, 100, 1] + [1] * len(anchor_names)
-        for value, scale in zip(values, scales, strict=True):
+        values = [
+            *((row.metrics.get(m.name), m.scale) for m in METRICS),
+            *((row.anchors.get(a), 1) for a in anchor_names),
+        ]
+        for value, scale in values:
             cells += ["", ""] if value is None else [round(scale * v, 4) for v in value]
         cells.append(row.fwt_reference or "")
         writer.writerow(cells)
     return buf.getvalue()
 
 
-def _value(value: float | None, digits: int = 4) -> str:
-    return "" if value is None else f"{value:.{digits}f}"
+def _runs(records: Sequence[RunRecord]) -> list[tuple[tuple[str, ...], list[Decision]]]:
+    return [((r.method, str(r.seed)), r.decisions) for r in records]
+
+
+RUN_COLUMNS = (("method", "---"), ("seed", "---:"))
 
 
 def decisions_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
-    """Every keep / prune decision of every run: the losses the rule compared (held-out), the
-    same points on training episodes, and how much ``L_curr`` still fell over the last steps
-    of the task (the convergence diagnostic; above ε the budget decided)."""
-    lines = [
-        f"# Decisions{': ' + stream if stream else ''}\n",
-        "| method | seed | task | subspace | L_prev | L_curr | L_prev / L_curr | ε | "
-        "train L_prev / L_curr | convergence | decision | anchors |",
-        "|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---|---:|",
-    ]
-    for r in records:
-        for d in r.decisions:
-            if d.get("decision") not in ("first", "keep", "prune") or d.get("rule") == "critic":
-                continue  # zero-shot records carry no losses; CSP decides by its critic
-            ratio = d["l_prev"] / d["l_curr"] if d.get("l_prev") is not None else None
-            train = (
-                d["l_prev_train"] / d["l_curr_train"]
-                if d.get("l_prev_train") is not None and d.get("l_curr_train")
-                else None
-            )
-            conv = d.get("improvement")
-            lines.append(
-                f"| {r.method} | {r.seed} | {d['task'] + 1} | {d['subspace']} | "
-                f"{_value(d.get('l_prev'))} | {_value(d['l_curr'])} | "
-                f"{'' if ratio is None else f'{ratio:.3f}'} | {d.get('eps', '')} | "
-                f"{'' if train is None else f'{train:.3f}'} | "
-                f"{'' if conv is None else f'{conv:+.1%}'} | {d['decision']} | {d['anchors']} |"
-            )
-    if len(lines) == 3:
+    """Every keep / prune decision of HiSPO's rule in every run: the losses the rule compared
+    (held-out), the same points on training episodes, and how much ``L_curr`` still fell over
+    the last steps of the task (the convergence diagnostic; above ε the budget decided)."""
+    table = decisions_table(LossDecision, _runs(records), RUN_COLUMNS)
+    if not table:
         return ""
     legend = (
         "\nLosses: squared error of the deterministic prediction on the task's held-out "
         "episodes (train: on its training episodes). The rule prunes iff L_prev / L_curr ≤ "
         "1 + ε. Convergence: relative fall of L_curr over the last 20 % of the task's steps."
     )
-    if any(d.get("rule") == "critic" for r in records for d in r.decisions):
+    if any(isinstance(d, CriticDecision) for r in records for d in r.decisions):
         legend += " CSP decides by its critic: its decisions are in critic.md."
-    legend += "\n"
-    return "\n".join(lines) + "\n" + legend
+    title = f"# Decisions{': ' + stream if stream else ''}\n"
+    return "\n".join([title, *table]) + "\n" + legend + "\n"
 
 
 def critic_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
     """CSP's decisions: the critic's values of the two points its rule compared, the imitation
     losses of the same points (what CSPO's rule would have compared) and how much the learned
     Q depends on the action (docs/csp.md); empty without critic decisions."""
-    lines = [
-        f"# Critic decisions{': ' + stream if stream else ''}\n",
-        "| method | seed | task | W_prev | W_curr | ε | L_prev / L_curr | Q std over actions | "
-        "Q std over states | action dependence | decision | anchors |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|",
-    ]
-    for r in records:
-        for d in r.decisions:
-            if d.get("rule") != "critic":
-                continue
-            ratio = d["l_prev"] / d["l_curr"] if d.get("l_prev") is not None else None
-            lines.append(
-                f"| {r.method} | {r.seed} | {d['task'] + 1} | {_value(d.get('w_prev'))} | "
-                f"{_value(d.get('w_curr'))} | {d.get('eps', '')} | {_value(ratio, 3)} | "
-                f"{_value(d.get('q_action_std'))} | {_value(d.get('q_state_std'))} | "
-                f"{_value(d.get('action_dependence'), 3)} | {d['decision']} | {d['anchors']} |"
-            )
-    if len(lines) == 3:
+    table = decisions_table(CriticDecision, _runs(records), RUN_COLUMNS)
+    if not table:
         return ""
     legend = (
         "\nW: the critic's value E_s[Q(s, g, π_α(s, g), α)] of the best point of the old "
@@ -149,14 +118,15 @@ def critic_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
         "over states; over states: the spread of Q(s, g, a_data); action dependence: their "
         "ratio (near 0: the critic values states, not actions).\n"
     )
-    return "\n".join(lines) + "\n" + legend
+    title = f"# Critic decisions{': ' + stream if stream else ''}\n"
+    return "\n".join([title, *table]) + "\n" + legend
 
 
 def before_training_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
     """Each task's success right before it is trained (R[k − 1, k], after the task before
     it), per method: how much of a task an earlier one already solves, e.g. whether an
     observation variant breaks a policy trained on its N task. Empty for one-task streams."""
-    specs = next((r.results.get("stream") for r in records if r.results.get("stream")), None)
+    specs = next((r.results.stream for r in records if r.results.stream), None)
     if not records or not specs or len(specs) < 2:
         return ""
     names = [
@@ -168,10 +138,10 @@ def before_training_markdown(records: Sequence[RunRecord], stream: str = "") -> 
         "|---|---:|" + "---:|" * (len(names) - 1),
     ]
     for method in dict.fromkeys(r.method for r in records):
-        mine = [r for r in records if r.method == method and r.results.get("stream") == specs]
+        mine = [r for r in records if r.method == method and r.results.stream == specs]
         if not mine:
             continue
-        before = np.stack([np.diagonal(results_matrix(r.results), offset=1) for r in mine])
+        before = np.stack([np.diagonal(r.results.matrix, offset=1) for r in mine])
         cells = [
             f"{100 * col.mean():.0f} ({100 * col.min():.0f}–{100 * col.max():.0f})"
             if len(mine) > 1
@@ -188,7 +158,7 @@ def before_training_markdown(records: Sequence[RunRecord], stream: str = "") -> 
 
 def run_minutes(record: RunRecord) -> float:
     """A run's wall minutes: the sum of its tasks' ``wall_time_s``."""
-    return sum(record.results.get("wall_time_s", [])) / 60
+    return sum(record.results.wall_time_s) / 60
 
 
 def runtime_csv(records: Sequence[RunRecord]) -> str:
