@@ -26,8 +26,8 @@ from .errors import Interrupted
 from .io import atomic_save
 from .metrics import continual_metrics, module_bytes, results_row_table
 from .modules.hispo import SubspacePolicy
-from .resume import MissingCheckpointError, RunDirLock, TaskCheckpoint, resume_progress
 from .results import StreamResults
+from .resume import MissingCheckpointError, RunDirLock, TaskCheckpoint, resume_progress
 from .rundir import RunDir, task_label
 from .stream_report import log_stream_end, log_task_end
 from .tasks import Task, parse_task
