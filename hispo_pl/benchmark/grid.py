@@ -23,6 +23,7 @@ from pathlib import Path
 from ..errors import ConfigError, RunDirError
 from ..rundir import RunDir
 from .configs import configured_value
+from .derive import sibling_derivations
 from .plan import PLAN_FILE, PlannedRun, plan_run, planned_tasks, stream_config_path
 
 GRIDS_DIR = "grids"
@@ -215,19 +216,27 @@ def _flag(sweep: Sweep, value: float) -> tuple[str, str]:
 @dataclass
 class GridPlan:
     """What a grid still needs: runs to train, runs to copy from an identical one (target,
-    source), and lines for what waits on something else."""
+    source), keep-last runs to derive from their keep-all sibling's checkpoints (target,
+    source: :mod:`~hispo_pl.benchmark.derive`), and lines for what waits on something else."""
 
     todo: list[Cell] = field(default_factory=list)
     derived: list[tuple[Cell, Cell]] = field(default_factory=list)
+    from_sibling: list[tuple[Cell, Cell]] = field(default_factory=list)
     waiting: list[str] = field(default_factory=list)
     done: list[Cell] = field(default_factory=list)
 
 
 def plan_cells(
-    grid: Grid, streams: Sequence[str], committed_per: Callable[[Cell], float | None]
+    grid: Grid,
+    streams: Sequence[str],
+    committed_per: Callable[[Cell], float | None],
+    sibling: Callable[[Cell], Cell | None] = lambda cell: None,
+    derivable: Callable[[Cell], bool] = lambda cell: False,
 ) -> GridPlan:
     """Every cell of ``streams``, sorted into done (``committed_per`` gives its PER), to run,
-    to derive and waiting. Streams outer, then the grid's methods, then seeds."""
+    to derive and waiting. Streams outer, then the grid's methods, then seeds. A cell with a
+    ``sibling`` to run or a ``derivable`` one done is derived from it
+    (:func:`~hispo_pl.benchmark.derive.sibling_derivations`)."""
     plan = GridPlan()
     for stream in streams:
         for method in grid.methods:
@@ -257,6 +266,7 @@ def plan_cells(
                     plan.derived.append((cell, sweep_cells[best]))
                 else:
                     plan.todo.append(cell)
+    plan.todo, plan.from_sibling = sibling_derivations(plan.todo, plan.done, sibling, derivable)
     return plan
 
 
@@ -363,7 +373,8 @@ def describe(plan: GridPlan, estimate: Callable[[Cell], float | None]) -> list[s
     minutes from committed runs of the same method), derived and waiting."""
     lines = []
     streams = dict.fromkeys(
-        c.stream for c in [*plan.done, *plan.todo] + [t for t, _ in plan.derived]
+        c.stream
+        for c in [*plan.done, *plan.todo] + [t for t, _ in plan.derived + plan.from_sibling]
     )
     for stream in streams:
         todo = [c for c in plan.todo if c.stream == stream]
@@ -375,7 +386,8 @@ def describe(plan: GridPlan, estimate: Callable[[Cell], float | None]) -> list[s
         lines.append(
             f"[grid] {stream}: {sum(c.stream == stream for c in plan.done)} done, "
             f"{len(todo)} to run{cost}, "
-            f"{sum(t.stream == stream for t, _ in plan.derived)} to copy from their sweep"
+            f"{sum(t.stream == stream for t, _ in plan.derived)} to copy from their sweep, "
+            f"{sum(t.stream == stream for t, _ in plan.from_sibling)} to derive from a sibling"
         )
     lines += [f"[grid] {line}" for line in plan.waiting]
     return lines
@@ -395,7 +407,13 @@ def run_grid(
     """Plan, run what is left ``workers`` at a time, export each finished run, and plan again
     until nothing new can start (a sweep's end lets its method's seeds start). Returns the
     number of failed runs."""
+    from .derive import derive_cell, grid_derivable, grid_sibling
+
     committed_per = committed_reader(grid, config_dir, root)
+    sibling, derivable = (
+        grid_sibling(grid.methods, config_dir),
+        grid_derivable(grid, config_dir, work, root),
+    )
 
     def estimate(cell: Cell) -> float | None:
         return estimated_minutes(cell, root, grid.streams)
@@ -403,10 +421,14 @@ def run_grid(
     failed = 0
     attempted: set[str] = set()
     while True:
-        plan = plan_cells(grid, streams, committed_per)
+        plan = plan_cells(grid, streams, committed_per, sibling, derivable)
         for target, source in plan.derived:
             export_cell(source.result_dir(root), target, root, derived_from=source)
             print(f"[grid] {target.name}: the same run as {source.name}, copied")
+        for target, source in plan.from_sibling if not dry_run else ():
+            if committed_per(source) is not None:  # else once its sibling has trained
+                out = derive_cell(target, source, grid, config_dir, work, root, num_threads)
+                print(f"[grid] {target.name}: derived from {source.name}, exported to {out}")
         for line in describe(plan, estimate):
             print(line)
         todo = [c for c in plan.todo if c.name not in attempted]
