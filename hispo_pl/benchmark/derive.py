@@ -30,7 +30,7 @@ from ..rundir import RunDir
 NETWORK_PER_TASK = "hispo_pl.modules.NetworkPerTask"
 ROLLOUT_EVALUATION = "hispo_pl.callbacks.RolloutEvaluation"
 
-C = TypeVar("C")  # a grid cell: a frozen dataclass with stream, label, method and seed
+C = TypeVar("C")  # a grid cell: a frozen dataclass with name, stream, label, method, seed
 
 
 # --- which methods, which cells: pure decisions ----------------------------------------------
@@ -82,13 +82,13 @@ def sibling_derivations(
     ``todo`` too (derived once it has trained) or is done and ``derivable`` (its run directory
     with checkpoints is still there). Returns the cells to train and the (target, source)
     pairs; a cell whose sibling is done but gone from disk trains."""
-    to_train = {getattr(c, "name", c) for c in todo}
-    finished = {getattr(c, "name", c) for c in done}
+    to_train, finished = {c.name for c in todo}, {c.name for c in done}
     keep, derive = [], []
     for cell in todo:
         source = sibling(cell)
-        name = getattr(source, "name", source)
-        if source is not None and (name in to_train or (name in finished and derivable(source))):
+        if source is not None and (
+            source.name in to_train or (source.name in finished and derivable(source))
+        ):
             derive.append((cell, source))
         else:
             keep.append(cell)
@@ -98,12 +98,12 @@ def sibling_derivations(
 def derivable_run(run_dir: Path, committed: Path | None = None) -> bool:
     """Whether ``run_dir`` holds a finished run with a checkpoint for every task (and, given
     ``committed``, the very results committed there), so a sibling can be derived from it."""
-    run = RunDir(run_dir)
+    run, kept = RunDir(run_dir), RunDir(committed) if committed is not None else None
+    if not run.has_results() or (kept is not None and not kept.has_results()):
+        return False
     try:
-        results = run.read_results() if run.has_results() else None
-        if results is None or (
-            committed is not None and RunDir(committed).read_results() != results
-        ):
+        results = run.read_results()
+        if kept is not None and kept.read_results() != results:
             return False
     except RunDirError:
         return False
@@ -183,7 +183,8 @@ def derive_run(source: str | Path, target: str | Path, record: dict | None = Non
     stands for: its checkpoints, ``config.yaml`` and ``task_XX.config.yaml``,
     ``progress.json``, ``results.json`` (R re-measured below the diagonal, PER, BWT, MEM and
     the table from it, the rest the source's), ``decisions.jsonl`` if the source has one, and
-    ``run.json`` (``record``, else the source's without its command) naming ``derived_from``.
+    ``run.json`` (``record``, else the source's without its method and command) naming
+    ``derived_from``.
     Returns the results.
 
     Raises:
@@ -192,11 +193,10 @@ def derive_run(source: str | Path, target: str | Path, record: dict | None = Non
     import torch
     import yaml
 
-    from ..io import atomic_save
+    from ..io import atomic_save, atomic_write_text
     from ..metrics import continual_metrics, memory_ratio, module_bytes, results_row_table
     from ..modules import GoalConditionedBC
     from ..modules.hbc import read_checkpoint
-    from ..run_checks import run_fingerprint
     from ..tasks import parse_task
 
     src, out = RunDir(source), RunDir(target)
@@ -239,23 +239,19 @@ def derive_run(source: str | Path, target: str | Path, record: dict | None = Non
         )
     derived["table"] = results_row_table(matrix)
     if progress:
-        fingerprint = run_fingerprint(yaml.safe_load(out.task_config(0).read_text()))
-        out.write_progress(
-            {
-                **progress,
-                "rows": R,
-                "wall_time_s": wall,
-                "phase_time_s": phases,
-                "fingerprint": fingerprint,
-            }
-        )
-    if src.decisions_file.exists():
-        out.decisions_file.write_text(src.decisions_file.read_text())
-    out.config_file.write_text(config_text)
-    meta = record if record is not None else src.read_run_record()
-    meta = {k: v for k, v in meta.items() if record is not None or k not in ("argv", "command")}
-    meta.setdefault("derived_from", str(src))
-    out.write_run_record(meta)
+        progress = {**progress, "rows": R, "wall_time_s": wall, "phase_time_s": phases}
+        if "fingerprint" in progress:  # flat settings: only keep differs
+            progress["fingerprint"] = {**progress["fingerprint"], "model.init_args.keep": "last"}
+        out.write_progress(progress)
+    decisions = src.read_decisions()
+    if decisions:  # the task-end decisions of identical training
+        out.decisions_file.unlink(missing_ok=True)
+        out.append_decisions(decisions)
+    atomic_write_text(out.config_file, config_text)
+    if record is None:  # the source's, but for its method and the command that made it
+        mine = ("method", "argv", "command")
+        record = {k: v for k, v in src.read_run_record().items() if k not in mine}
+    out.write_run_record({"derived_from": str(src), **record})
     out.write_results(derived)
     return derived
 
@@ -324,25 +320,3 @@ def derive_cell(
     }
     derive_run(made.run_dir, run.run_dir, record)
     return export_cell(run.run_dir, target, root)
-
-
-def derivation_note(results: dict) -> str:
-    """One line for the console: what the derivation measured and what it took."""
-    entries = sum(len(row[:i]) for i, row in enumerate(results["R"]))
-    return (
-        f"{entries} entries of R measured again in {sum(results['wall_time_s']):.0f} s, "
-        f"PER {100 * results['PER']:.1f}"
-    )
-
-
-__all__ = [
-    "derivable_run",
-    "derive_cell",
-    "derive_run",
-    "grid_sibling",
-    "keep_last_checkpoint",
-    "keep_last_config_text",
-    "keep_last_siblings",
-    "sibling_derivations",
-    "with_keep",
-]

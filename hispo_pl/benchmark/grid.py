@@ -23,7 +23,7 @@ from pathlib import Path
 from ..errors import ConfigError, RunDirError
 from ..rundir import RunDir
 from .configs import configured_value
-from .derive import sibling_derivations
+from .derive import derive_cell, grid_derivable, grid_sibling, sibling_derivations
 from .plan import PLAN_FILE, PlannedRun, plan_run, planned_tasks, stream_config_path
 
 GRIDS_DIR = "grids"
@@ -407,13 +407,9 @@ def run_grid(
     """Plan, run what is left ``workers`` at a time, export each finished run, and plan again
     until nothing new can start (a sweep's end lets its method's seeds start). Returns the
     number of failed runs."""
-    from .derive import derive_cell, grid_derivable, grid_sibling
-
     committed_per = committed_reader(grid, config_dir, root)
-    sibling, derivable = (
-        grid_sibling(grid.methods, config_dir),
-        grid_derivable(grid, config_dir, work, root),
-    )
+    sibling = grid_sibling(grid.methods, config_dir)
+    derivable = grid_derivable(grid, config_dir, work, root)
 
     def estimate(cell: Cell) -> float | None:
         return estimated_minutes(cell, root, grid.streams)
