@@ -103,6 +103,13 @@ class RolloutEvaluation(KeyedState):
         pl_module.task_record.rollouts = results[i]  # the current task's, with their paths
         self._record(pl_module, {"success": row[i], "step": trainer.global_step})
 
+    def evaluate_task(
+        self, task: str | Task, pl_module: L.LightningModule, task_index: int
+    ) -> RolloutResult:
+        """One entry of a row of R as a task's end measures it: ``pl_module`` acting as task
+        ``task_index`` on ``task``, timed as evaluation (a derived run re-measures with it)."""
+        return self._run(task, pl_module, task_index)
+
     def _record(self, pl_module: L.LightningModule, evaluation: dict[str, float]) -> None:
         pl_module.task_record.evaluation = evaluation
         pl_module.task_record.episodes = self.episodes

@@ -21,6 +21,7 @@ from pathlib import Path
 from ..errors import ConfigError, RunDirError
 from ..rundir import RunDir
 from .configs import configured_value
+from .derive import sibling_derivations
 from .plan import PlannedRun, plan_run, planned_tasks, stream_config_path
 
 GRIDS_DIR = "grids"
@@ -213,19 +214,27 @@ def _flag(sweep: Sweep, value: float) -> tuple[str, str]:
 @dataclass
 class GridPlan:
     """What a grid still needs: runs to train, runs to copy from an identical one (target,
-    source), and lines for what waits on something else."""
+    source), keep-last runs to derive from their keep-all sibling's checkpoints (target,
+    source: :mod:`~hispo_pl.benchmark.derive`), and lines for what waits on something else."""
 
     todo: list[Cell] = field(default_factory=list)
     derived: list[tuple[Cell, Cell]] = field(default_factory=list)
+    from_sibling: list[tuple[Cell, Cell]] = field(default_factory=list)
     waiting: list[str] = field(default_factory=list)
     done: list[Cell] = field(default_factory=list)
 
 
 def plan_cells(
-    grid: Grid, streams: Sequence[str], committed_per: Callable[[Cell], float | None]
+    grid: Grid,
+    streams: Sequence[str],
+    committed_per: Callable[[Cell], float | None],
+    sibling: Callable[[Cell], Cell | None] = lambda cell: None,
+    derivable: Callable[[Cell], bool] = lambda cell: False,
 ) -> GridPlan:
     """Every cell of ``streams``, sorted into done (``committed_per`` gives its PER), to run,
-    to derive and waiting. Streams outer, then the grid's methods, then seeds."""
+    to derive and waiting. Streams outer, then the grid's methods, then seeds. A cell with a
+    ``sibling`` to run or a ``derivable`` one done is derived from it
+    (:func:`~hispo_pl.benchmark.derive.sibling_derivations`)."""
     plan = GridPlan()
     for stream in streams:
         for method in grid.methods:
@@ -255,6 +264,7 @@ def plan_cells(
                     plan.derived.append((cell, sweep_cells[best]))
                 else:
                     plan.todo.append(cell)
+    plan.todo, plan.from_sibling = sibling_derivations(plan.todo, plan.done, sibling, derivable)
     return plan
 
 
@@ -317,7 +327,8 @@ def describe(plan: GridPlan, estimate: Callable[[Cell], float | None]) -> list[s
     minutes from committed runs of the same method), derived and waiting."""
     lines = []
     streams = dict.fromkeys(
-        c.stream for c in [*plan.done, *plan.todo] + [t for t, _ in plan.derived]
+        c.stream
+        for c in [*plan.done, *plan.todo] + [t for t, _ in plan.derived + plan.from_sibling]
     )
     for stream in streams:
         todo = [c for c in plan.todo if c.stream == stream]
@@ -329,7 +340,8 @@ def describe(plan: GridPlan, estimate: Callable[[Cell], float | None]) -> list[s
         lines.append(
             f"[grid] {stream}: {sum(c.stream == stream for c in plan.done)} done, "
             f"{len(todo)} to run{cost}, "
-            f"{sum(t.stream == stream for t, _ in plan.derived)} to copy from their sweep"
+            f"{sum(t.stream == stream for t, _ in plan.derived)} to copy from their sweep, "
+            f"{sum(t.stream == stream for t, _ in plan.from_sibling)} to derive from a sibling"
         )
     lines += [f"[grid] {line}" for line in plan.waiting]
     return lines

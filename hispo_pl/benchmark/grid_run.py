@@ -8,9 +8,11 @@ import json
 import shutil
 import sys
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 from ..rundir import RunDir
+from .derive import derivable_run, derive_run, keep_last_siblings
 from .grid import Cell, Grid, cell_run, committed_reader, describe, plan_cells
 from .plan import PLAN_FILE, PlannedRun
 
@@ -74,6 +76,8 @@ def run_grid(
     until nothing new can start (a sweep's end lets its method's seeds start). Returns the
     number of failed runs."""
     committed_per = committed_reader(grid, config_dir, root)
+    sibling = grid_sibling(grid.methods, config_dir)
+    derivable = grid_derivable(grid, config_dir, work, root)
 
     def estimate(cell: Cell) -> float | None:
         return estimated_minutes(cell, root, grid.streams)
@@ -81,10 +85,14 @@ def run_grid(
     failed = 0
     attempted: set[str] = set()
     while True:
-        plan = plan_cells(grid, streams, committed_per)
+        plan = plan_cells(grid, streams, committed_per, sibling, derivable)
         for target, source in plan.derived:
             export_cell(source.result_dir(root), target, root, derived_from=source)
             print(f"[grid] {target.name}: the same run as {source.name}, copied")
+        for target, source in plan.from_sibling if not dry_run else ():
+            if committed_per(source) is not None:  # else once its sibling has trained
+                out = derive_cell(target, source, grid, config_dir, work, root, num_threads)
+                print(f"[grid] {target.name}: derived from {source.name}, exported to {out}")
         for line in describe(plan, estimate):
             print(line)
         todo = [c for c in plan.todo if c.name not in attempted]
@@ -146,3 +154,70 @@ def _run_cells(
     finally:
         reporter.close()
     return len(reporter.failed)
+
+
+def grid_sibling(methods: Sequence[str], config_dir: Path) -> Callable[[Cell], Cell | None]:
+    """``sibling(cell)``: the keep-all cell of the same stream and seed whose run stands for
+    a keep-last ``cell`` (:func:`keep_last_siblings` of the grid's method configs), or None."""
+    import yaml
+
+    configs = {}
+    for method in methods:
+        path = Path(config_dir) / "methods" / f"{method}.yaml"
+        if path.is_file():
+            configs[method] = yaml.safe_load(path.read_text()) or {}
+    pairs = keep_last_siblings(configs)
+
+    def sibling(cell):
+        source = pairs.get(cell.method)
+        if source is None or cell.extra or cell.sweep:
+            return None
+        return replace(cell, label=source, method=source)
+
+    return sibling
+
+
+def grid_derivable(grid: Grid, config_dir: Path, work: Path, root: Path) -> Callable[[Cell], bool]:
+    """``derivable(cell)``: whether the grid's work directory still holds the cell's run with
+    every checkpoint, the same run as the one committed under ``root``."""
+
+    def derivable(cell) -> bool:
+        run_dir = cell_run(cell, grid, config_dir, work).run_dir
+        return derivable_run(run_dir, cell.result_dir(root))
+
+    return derivable
+
+
+def derive_cell(
+    target: Cell,
+    source: Cell,
+    grid: Grid,
+    config_dir: Path,
+    work: Path,
+    root: Path,
+    num_threads: int = 1,
+) -> Path:
+    """Derive the grid cell ``target`` from its sibling ``source``'s run in ``work`` (its
+    run directory where the grid would have trained it, with the ``run.json`` its launch would
+    have written) and export it under ``root``; the exported directory."""
+    import shlex
+    import sys
+
+    from .plan import provenance
+
+    run, made = (
+        cell_run(target, grid, config_dir, work, num_threads),
+        cell_run(source, grid, config_dir, work, num_threads),
+    )
+    record = {
+        "method": run.method,
+        "seed": run.seed,
+        "stream": target.stream,
+        "steps_per_task": run.steps_per_task,
+        "argv": list(run.argv),
+        "command": shlex.join(run.command(sys.executable)),
+        **provenance(),
+        "derived_from": source.name,
+    }
+    derive_run(made.run_dir, run.run_dir, record)
+    return export_cell(run.run_dir, target, root)
