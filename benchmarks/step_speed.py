@@ -169,6 +169,7 @@ def _worker(path: str, args: argparse.Namespace, conn) -> None:
     from timing import trainer_steps_per_s
 
     from hispo_pl.data.datasets import load_episodes
+    from hispo_pl.data.generation import generate_missing
     from hispo_pl.data.sampler import HERConfig, HERSampler
     from hispo_pl.nn import fast
     from hispo_pl.tasks import parse_task
@@ -180,6 +181,7 @@ def _worker(path: str, args: argparse.Namespace, conn) -> None:
             fast.retain_freed_memory()
         task = parse_task(args.task)
         fam = task.env_family
+        generate_missing(task)  # as a fit does: collect the maze's data on first use
         data = load_episodes(task)
         her = HERConfig(task.defaults.waysteps, task.defaults.her_temperature)
         sampler = HERSampler(data, her, args.batch_size, seed=0)

@@ -19,6 +19,7 @@ import torch
 from timing import trainer_steps_per_s
 
 from hispo_pl.data.datasets import load_episodes
+from hispo_pl.data.generation import generate_missing
 from hispo_pl.data.sampler import HERConfig, HERSampler
 from hispo_pl.modules import BC, HBC
 from hispo_pl.tasks import parse_task
@@ -60,6 +61,7 @@ def main() -> None:
     logging.getLogger("lightning.pytorch").setLevel(logging.ERROR)
 
     task = parse_task(args.task)
+    generate_missing(task)  # as a fit does: collect the maze's data on first use
     data = load_episodes(task)
     cfg = HERConfig(task.defaults.waysteps, task.defaults.her_temperature)
     sampler = HERSampler(data, cfg, args.batch_size, seed=0)
