@@ -30,6 +30,7 @@ REFERENCE_FOLDERS = (
     "videogame-2",
     "pointmaze-1-paper",
     "pointmaze-2-paper",
+    "antmaze-1-paper",
     "grid-paper",
     "demo",
 )
