@@ -13,7 +13,7 @@ from typing_extensions import override
 
 from ..decisions import pac_rate, zero_shot
 from ..nn import eval_mode
-from ..nn.subspace import sample_dirichlet
+from ..nn.simplex import sample_dirichlet
 from ..search import race_subspace, resolve_precision
 from .protocols import require_subspace_policy
 from .state import KeyedState

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from .nn.subspace import sample_dirichlet
+from .nn.simplex import sample_dirichlet
 
 
 def keep_previous(l_prev: float, l_curr: float, eps: float) -> bool:

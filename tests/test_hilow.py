@@ -15,7 +15,8 @@ from hispo_pl.modules.hbc import GoalConditionedBC
 from hispo_pl.modules.hilow import HiLOW
 from hispo_pl.modules.hispo import SUBSPACES, HiSPO, SubspacePolicy
 from hispo_pl.nn.lowrank import LowRankSubspaceLinear, low_rank_
-from hispo_pl.nn.subspace import SubspaceLinear, sample_dirichlet, subspace_layers
+from hispo_pl.nn.simplex import sample_dirichlet
+from hispo_pl.nn.subspace import SubspaceLinear, subspace_layers
 
 IN, OUT, RANK, K, M, B = 12, 10, 3, 4, 5, 7
 

@@ -7,7 +7,7 @@ import torch
 
 from hispo_pl.config import BackboneConfig
 from hispo_pl.modules.hispo import HiSPO
-from hispo_pl.nn.subspace import sample_dirichlet
+from hispo_pl.nn.simplex import sample_dirichlet
 from hispo_pl.search import race_candidates, resolve_precision
 
 

@@ -8,12 +8,12 @@ import torch.nn.functional as F
 from torch import nn
 
 from hispo_pl.nn.mlp import ResidualMLP
+from hispo_pl.nn.simplex import sample_dirichlet
 from hispo_pl.nn.subspace import (
     SubspaceLayerNorm,
     SubspaceLinear,
     SubspaceResidualMLP,
     cosine_similarity_penalty,
-    sample_dirichlet,
     subspace_layers,
 )
 

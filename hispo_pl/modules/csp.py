@@ -23,7 +23,8 @@ from ..config import BackboneConfig, OptimConfig
 from ..nn import eval_mode
 from ..nn.critic import CriticConfig, SubspaceCritic
 from ..nn.hierarchy import high_input, high_input_dim
-from ..nn.subspace import AnchorInit, sample_dirichlet
+from ..nn.simplex import sample_dirichlet
+from ..nn.subspace import AnchorInit
 from .cspo import CSPO, POLICY
 from .hispo import SubspacePolicy
 

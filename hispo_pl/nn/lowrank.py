@@ -10,7 +10,8 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from .mlp import _init_linear
-from .subspace import AnchorInit, SubspaceLayer, SubspaceLinear, batched_affine, check_alpha
+from .simplex import check_alpha
+from .subspace import AnchorInit, SubspaceLayer, SubspaceLinear, batched_affine
 
 
 class LowRankSubspaceLinear(SubspaceLayer):
