@@ -208,7 +208,7 @@ def print_stream_results(results: dict) -> None:
     legend = decision_legend(decisions)
     for line in decision_lines(decisions):
         print(f"[hispo-pl] {line}  ({legend})")
-    print(f"[hispo-pl] wall time per task (s): {[round(t) for t in typed.wall_time_s]}")
+    print(f"[hispo-pl] wall time per task (s): {[round(t) for t in typed.wall_time_s or []]}")
     print(f"[hispo-pl] results: {run_dir.results_file}")
     if any(Path(results["run_dir"]).glob("events.out.tfevents.*")):
         print(f"[hispo-pl] curves and decisions: tensorboard --logdir {results['run_dir']}")

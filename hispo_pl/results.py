@@ -274,7 +274,7 @@ class StreamResults:
 
     stream: list[str]
     R: list[list[float | None]]
-    wall_time_s: list[float]
+    wall_time_s: list[float] | None = None
     phase_time_s: list[dict[str, float] | None] | None = None
     datasets: list[Any] | None = None
     metrics: dict[str, float] = field(default_factory=dict)
@@ -297,8 +297,8 @@ class StreamResults:
     def to_json(self) -> dict:
         """The file's keys in its order: the metrics of the success matrix, then the stored
         bytes and the metrics measured on the model (MEM)."""
-        out: dict = {"stream": self.stream, "R": self.R, "wall_time_s": self.wall_time_s}
-        for name in ("phase_time_s", "datasets"):
+        out: dict = {"stream": self.stream, "R": self.R}
+        for name in ("wall_time_s", "phase_time_s", "datasets"):
             if getattr(self, name) is not None:
                 out[name] = getattr(self, name)
         for of_model in (False, True):

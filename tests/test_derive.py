@@ -147,7 +147,7 @@ def test_grid_trains_the_sibling_then_derives_the_keep_last_cell(tiny_umaze, tmp
     grid = gr.Grid("tiny", ("pointmaze-1",), ("sc1", "scn"), (0,), steps_per_task=5,
                    extra=tuple(BENCH_TINY_OVERRIDES))  # fmt: skip
     work, root = tmp_path / "work", tmp_path / "results"
-    assert gr.run_grid(grid, ["pointmaze-1"], configs, work, root, workers=1) == 0
+    assert grid_run.run_grid(grid, ["pointmaze-1"], configs, work, root, workers=1) == 0
     printed = capsys.readouterr().out
     assert "pointmaze-1: 0 done, 1 to run" in printed and "1 to derive from a sibling" in printed
     assert "pointmaze-1/sc1/seed0: derived from pointmaze-1/scn/seed0" in printed
@@ -162,5 +162,7 @@ def test_grid_trains_the_sibling_then_derives_the_keep_last_cell(tiny_umaze, tmp
     assert results["MEM"] == pytest.approx(1, rel=1e-3)
     assert json.loads((root / "pointmaze-1/scn/seed0/results.json").read_text())["MEM"] > 1.9
     # a rerun finds both done
-    assert gr.run_grid(grid, ["pointmaze-1"], configs, work, root, workers=1, dry_run=True) == 0
+    assert (
+        grid_run.run_grid(grid, ["pointmaze-1"], configs, work, root, workers=1, dry_run=True) == 0
+    )
     assert "pointmaze-1: 2 done, 0 to run" in capsys.readouterr().out

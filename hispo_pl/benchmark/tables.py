@@ -158,7 +158,7 @@ def before_training_markdown(records: Sequence[RunRecord], stream: str = "") -> 
 
 def run_minutes(record: RunRecord) -> float:
     """A run's wall minutes: the sum of its tasks' ``wall_time_s``."""
-    return sum(record.results.wall_time_s) / 60
+    return sum(record.results.wall_time_s or []) / 60
 
 
 def runtime_csv(records: Sequence[RunRecord]) -> str:
