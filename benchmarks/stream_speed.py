@@ -127,36 +127,35 @@ def run_both(runs: dict) -> None:
 def report(runs: dict) -> None:
     import numpy as np
 
+    from hispo_pl.metrics import METRIC
     from hispo_pl.rundir import RunDir
 
-    results = {p: RunDir(r[0]).read_results() for p, r in runs.items()}
+    results = {p: RunDir(r[0]).stream_results() for p, r in runs.items()}
     ref, fast = results.values()
     print(
         "\ntask  reference min  fast min  reference/fast"
         if tuple(runs) == PATHS
         else f"\ntask  {' min  '.join(runs)} min  ratio"
     )
-    for i, (a, b) in enumerate(zip(ref["wall_time_s"], fast["wall_time_s"], strict=True), start=1):
+    for i, (a, b) in enumerate(zip(ref.wall_time_s, fast.wall_time_s, strict=True), start=1):
         print(f"T{i:02d}   {a / 60:13.2f}  {b / 60:8.2f}  {a / b:14.2f}")
-    total_ref, total_fast = sum(ref["wall_time_s"]), sum(fast["wall_time_s"])
+    total_ref, total_fast = sum(ref.wall_time_s), sum(fast.wall_time_s)
     print(f"all   {total_ref / 60:13.2f}  {total_fast / 60:8.2f}  {total_ref / total_fast:14.2f}\n")
     print("where the time went (minutes over all tasks, share of the stream's wall time)")
     for path, r in results.items():
         totals: dict[str, float] = {}
-        for phases in r.get("phase_time_s", []):
+        for phases in r.phase_time_s or []:
             for name, seconds in (phases or {}).items():
                 totals[name] = totals.get(name, 0.0) + seconds
-        wall = sum(r["wall_time_s"])
+        wall = sum(r.wall_time_s)
         parts = ", ".join(f"{k} {v / 60:.2f} ({v / wall:.0%})" for k, v in totals.items())
         print(f"{path:9s}  {parts or 'not recorded'}")
     print()
     for path, r in results.items():
-        anchors = " ".join(f"{k}={v}" for k, v in r.get("anchors", {}).items())
-        print(
-            f"{path:9s}  PER {100 * r['PER']:5.1f}  BWT {100 * r['BWT']:5.1f}  "
-            f"MEM {r['MEM']:.2f}  anchors {anchors or '-'}"
-        )
-    diff = np.nanmax(np.abs(np.asarray(ref["R"], float) - np.asarray(fast["R"], float)))
+        anchors = " ".join(f"{k}={v}" for k, v in (r.anchors or {}).items())
+        metrics = "  ".join(f"{k} {METRIC[k].format(v):>5s}" for k, v in r.metrics.items())
+        print(f"{path:9s}  {metrics}  anchors {anchors or '-'}")
+    diff = np.nanmax(np.abs(ref.matrix - fast.matrix))
     print(f"largest success difference between the two R matrices: {100 * diff:.1f} points")
 
 
@@ -166,7 +165,7 @@ def pair_ratios(runs: dict) -> tuple[float, float | None]:
 
     walls, cpus = [], []
     for run_dir, _ in runs.values():
-        walls.append(sum(RunDir(run_dir).read_results()["wall_time_s"]))
+        walls.append(sum(RunDir(run_dir).stream_results().wall_time_s))
         cpu = Path(run_dir) / CPU_FILE
         cpus.append(json.loads(cpu.read_text())["cpu_s"] if cpu.exists() else None)
     cpu_ratio = cpus[0] / cpus[1] if None not in cpus else None

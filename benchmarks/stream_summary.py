@@ -10,37 +10,34 @@ from __future__ import annotations
 
 import sys
 
-from hispo_pl.metrics import summarize_runs
+from hispo_pl.metrics import METRIC
+from hispo_pl.results import summarize_runs
 from hispo_pl.rundir import RunDir
 
-SCALE = {"PER": 100, "BWT": 100, "FWT": 100, "MEM": 1, "minutes": 1}
+
+def _metric(name: str, value: float) -> str:
+    return METRIC[name].format(value) if name in METRIC else f"{value:.1f}"  # minutes
 
 
 def main(run_dirs: list[str]) -> None:
-    results = []
+    runs = []
     for d in run_dirs:
         run = RunDir(d)
-        if not run.results_file.exists():
+        if not run.has_results():
             sys.exit(
                 f"{run.results_file} not found: is the run finished? (rerun its command to "
                 "resume it)"
             )
-        r = run.read_results()
-        results.append(r)
-        anchors = " ".join(f"{k}={v}" for k, v in r.get("anchors", {}).items())
-        print(
-            f"{d}: PER {100 * r['PER']:.1f}  BWT {100 * r['BWT']:.1f}  MEM {r['MEM']:.2f}  "
-            f"anchors {anchors}  {sum(r['wall_time_s']) / 60:.1f} min"
-        )
-    summary = summarize_runs(results)
+        r = run.stream_results()
+        runs.append(r)
+        metrics = "  ".join(f"{k} {_metric(k, v)}" for k, v in r.metrics.items())
+        anchors = " ".join(f"{k}={v}" for k, v in (r.anchors or {}).items())
+        minutes = f"  {sum(r.wall_time_s) / 60:.1f} min" if r.wall_time_s else ""
+        print(f"{d}: {metrics}  anchors {anchors}{minutes}")
+    summary = summarize_runs(runs)
     print(
-        f"mean ± std over {len(results)} runs: "
-        + "  ".join(
-            f"{k} {SCALE[k] * m:.1f} ± {SCALE[k] * s:.1f}"
-            if k != "MEM"
-            else f"{k} {m:.2f} ± {s:.2f}"
-            for k, (m, s) in summary.items()
-        )
+        f"mean ± std over {len(runs)} runs: "
+        + "  ".join(f"{k} {_metric(k, m)} ± {_metric(k, s)}" for k, (m, s) in summary.items())
     )
 
 

@@ -52,13 +52,11 @@ def scratch_diagonal(path: Path, n_tasks: int) -> list[float]:
 
 def task_datamodules(
     datamodule: TaskDataModule, data_args: dict
-) -> Callable[[str | Task], TaskDataModule]:
+) -> Callable[[Task], TaskDataModule]:
     """The loop's ``make_datamodule``: each task's datamodule with the stream's data settings
-    and its tasks as ``datamodule`` parsed them, so that no spec is parsed again."""
-    parsed = {task.spec: task for task in datamodule.tasks}
+    and the stream's tasks as ``datamodule`` parsed them (no spec is parsed again)."""
 
-    def make_datamodule(task: str | Task) -> TaskDataModule:
-        task = parsed.get(task, task) if isinstance(task, str) else task
+    def make_datamodule(task: Task) -> TaskDataModule:
         return TaskDataModule(**{**data_args, "task": task, "stream": datamodule.tasks})
 
     return make_datamodule

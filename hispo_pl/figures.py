@@ -7,7 +7,7 @@ Shared by TensorBoard (:mod:`hispo_pl.stream_report`) and the anchor-weights not
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -66,16 +66,16 @@ def success_matrix_figure(
     return fig
 
 
-def stream_summary(results: dict) -> str:
-    """``PER 99.4  BWT 0.0  FWT 0.6 (success %)  MEM 1.93``: the metrics of
-    :data:`~hispo_pl.metrics.METRICS` as the tables print them (success ×100, MEM a ratio of
-    model sizes, never a percentage)."""
-    known = [m for m in METRICS if results.get(m.name) is not None]
-    percent = [f"{m.name} {m.format(results[m.name])}" for m in known if m.percent]
+def stream_summary(metrics: Mapping[str, float | None]) -> str:
+    """``PER 99.4  BWT 0.0  FWT 0.6 (success %)  MEM 1.93``: a run's metrics (by name, as
+    :attr:`~hispo_pl.results.StreamResults.metrics`) as the tables print them (success ×100,
+    MEM a ratio of model sizes, never a percentage)."""
+    known = [m for m in METRICS if metrics.get(m.name) is not None]
+    percent = [f"{m.name} {m.format(metrics[m.name])}" for m in known if m.percent]
     text = "  ".join(percent) + (" (success %)" if percent else "")
     for m in known:
         if not m.percent:
-            text += f"  {m.name} {m.format(results[m.name])}"
+            text += f"  {m.name} {m.format(metrics[m.name])}"
     return text.strip()
 
 

@@ -58,9 +58,9 @@ class ContinualLoop:
     """Trains ``module`` on each task of ``stream`` in turn and measures R[i, j].
 
     Args:
-        stream: task specs in order.
+        stream: the tasks (or their specs) in order.
         module: the method (its state carries over from task to task).
-        make_datamodule: task spec → the task's datamodule (knowing the whole stream).
+        make_datamodule: task → the task's datamodule (knowing the whole stream).
         make_trainer: task index → a fresh Trainer (callbacks may be shared instances).
         run_dir: where checkpoints, ``progress.json`` and ``results.json`` go.
         reference_bytes: bytes of one single-task model, for MEM.
@@ -83,7 +83,7 @@ class ContinualLoop:
         self,
         stream: Sequence[str | Task],
         module: L.LightningModule,
-        make_datamodule: Callable[[str], TaskDataModule],
+        make_datamodule: Callable[[Task], TaskDataModule],
         make_trainer: Callable[[int], L.Trainer],
         run_dir: RunDir | str | Path,
         reference_bytes: int | None = None,
@@ -94,7 +94,7 @@ class ContinualLoop:
         checkpoint_every: int = 0,
         pictures: bool = True,
     ):
-        self.stream = [parse_task(t).spec for t in stream]
+        self.stream: list[Task] = [parse_task(t) for t in stream]  # parsed once, here
         self.module = module
         self.make_datamodule = make_datamodule
         self.make_trainer = make_trainer
@@ -108,6 +108,11 @@ class ContinualLoop:
         self.pictures = pictures  # a rollout picture per task in TensorBoard
         self._loggers: list = []  # the trainers' loggers, for the stream-level report
         self._layout_logged = False
+
+    @property
+    def specs(self) -> list[str]:
+        """The stream as task specs, the form its files hold."""
+        return [task.spec for task in self.stream]
 
     # --- progress on disk -------------------------------------------------------------------
 
@@ -135,7 +140,7 @@ class ContinualLoop:
 
     def _run(self) -> dict:
         self.run_dir.remove_stale_temporaries()  # of writes a kill cut short; the lock is ours
-        progress = resume_progress(self.run_dir, self.stream, self.fingerprint)
+        progress = resume_progress(self.run_dir, self.specs, self.fingerprint)
         done = len(progress["rows"])
         last = self.run_dir.checkpoint(done - 1) if done else None
         if last is not None and not last.exists():
@@ -235,7 +240,7 @@ class ContinualLoop:
             R[i, : len(row)] = row
         stored = module_bytes(self.module)
         results = StreamResults(
-            stream=self.stream,
+            stream=self.specs,
             R=[[None if math.isnan(v) else v for v in row] for row in R.tolist()],
             wall_time_s=progress["wall_time_s"],
             phase_time_s=progress["phase_time_s"],

@@ -221,16 +221,3 @@ def results_row_table(R: ArrayLike) -> str:
     for label, row in zip(labels, cells, strict=True):
         lines.append(f"{label:<{label_w}}" + "".join(f"  {c:>{width}}" for c in row))
     return "\n".join(lines)
-
-
-def summarize_runs(results: list[dict]) -> dict[str, tuple[float, float]]:
-    """Mean and (population) standard deviation over runs of each metric of :data:`METRICS`
-    that every run has, as the paper's tables report them, and of the wall time of a whole
-    stream in minutes. ``results`` are ``results.json`` dicts."""
-    if not results:
-        raise ValueError("no runs to summarise")
-    columns = {
-        m.name: [r[m.name] for r in results] for m in METRICS if all(m.name in r for r in results)
-    }
-    columns["minutes"] = [sum(r["wall_time_s"]) / 60 for r in results]
-    return {k: (float(np.mean(v)), float(np.std(v))) for k, v in columns.items()}

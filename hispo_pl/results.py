@@ -322,6 +322,22 @@ class StreamResults:
         return cls(**known, metrics=metrics, extra=extra)
 
 
+def summarize_runs(runs: Sequence[StreamResults]) -> dict[str, tuple[float, float]]:
+    """Mean and (population) standard deviation over runs of each metric of :data:`METRICS`
+    that every run has, as the paper's tables report them, and of the wall time of a whole
+    stream in minutes (runs that recorded it)."""
+    if not runs:
+        raise ValueError("no runs to summarise")
+    columns = {
+        m.name: [r.metrics[m.name] for r in runs]
+        for m in METRICS
+        if all(m.name in r.metrics for r in runs)
+    }
+    if all(r.wall_time_s is not None for r in runs):
+        columns["minutes"] = [sum(r.wall_time_s) / 60 for r in runs]
+    return {k: (float(np.mean(v)), float(np.std(v))) for k, v in columns.items()}
+
+
 def fwt_reference(scratch: StreamResults | None, n_tasks: int) -> list[float] | None:
     """The per-task success FWT is measured against: the R diagonal of a from-scratch run of
     a stream as long (None: no such run)."""

@@ -55,9 +55,9 @@ def test_a_derived_run_equals_a_real_run_of_the_same_seed(real_runs, target, sou
     derived = derive.derive_run(runs[source], out)
     real, sibling = RunDir(runs[target]), RunDir(runs[source])
     # the entry measured again matters: copying the sibling's R would fail here
-    assert derived["R"] != sibling.read_results()["R"]
-    assert _without_times(derived) == _without_times(real.read_results())
-    assert RunDir(out).read_results() == derived
+    assert derived.R != sibling.stream_results().R
+    assert _without_times(derived.to_json()) == _without_times(real.read_results())
+    assert RunDir(out).stream_results() == derived
     progress, real_progress = RunDir(out).read_progress(), real.read_progress()
     assert _without_times(progress) == _without_times(real_progress)
     assert progress["fingerprint"]["model.init_args.keep"] == "last"
@@ -73,10 +73,8 @@ def test_a_derived_run_equals_a_real_run_of_the_same_seed(real_runs, target, sou
         real.config_file.read_text()
     )
     # its cost is the evaluation it ran: nothing trained, the first row measured nothing again
-    assert [p["training"] for p in derived["phase_time_s"]] == [0.0, 0.0]
-    assert (
-        derived["phase_time_s"][0]["evaluation"] == 0.0 < derived["phase_time_s"][1]["evaluation"]
-    )
+    assert [p["training"] for p in derived.phase_time_s] == [0.0, 0.0]
+    assert derived.phase_time_s[0]["evaluation"] == 0.0 < derived.phase_time_s[1]["evaluation"]
     assert RunDir(out).read_run_record()["derived_from"] == str(runs[source])
 
 
@@ -158,8 +156,7 @@ def test_grid_trains_the_sibling_then_derives_the_keep_last_cell(tiny_umaze, tmp
     config = yaml.safe_load(exported.config_file.read_text())
     assert config["model"]["init_args"]["keep"] == "last"
     assert config["trainer"]["logger"]["init_args"]["name"] == "sc1"
-    results = exported.read_results()
-    assert results["MEM"] == pytest.approx(1, rel=1e-3)
+    assert exported.stream_results().metrics["MEM"] == pytest.approx(1, rel=1e-3)
     assert json.loads((root / "pointmaze-1/scn/seed0/results.json").read_text())["MEM"] > 1.9
     # a rerun finds both done
     assert (

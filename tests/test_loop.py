@@ -24,6 +24,7 @@ from hispo_pl.loop import ContinualLoop, task_phases
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.hispo import SUBSPACES, HiSPO
 from hispo_pl.rundir import RunDir
+from hispo_pl.tasks import Task
 
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-IA[3]", "pointmaze-umaze-PO[3]"]
 SIZES = {"obs_dim": 4, "action_dim": 2, "backbone": BackboneConfig(high_hidden=8, low_hidden=16)}
@@ -48,7 +49,7 @@ def _loop(run_dir, stream=STREAM, stop_at: int | None = None, seed: int | None =
     ]
     started: list[int] = []
 
-    def make_datamodule(task: str) -> TaskDataModule:
+    def make_datamodule(task: Task) -> TaskDataModule:
         return TaskDataModule(task=task, batch_size=64, steps_per_epoch=5, stream=stream)
 
     def make_trainer(k: int) -> L.Trainer:

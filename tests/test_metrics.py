@@ -14,8 +14,8 @@ from hispo_pl.metrics import (
     memory_ratio,
     module_bytes,
     results_row_table,
-    summarize_runs,
 )
+from hispo_pl.results import StreamResults, summarize_runs
 
 NAN = float("nan")
 
@@ -184,10 +184,12 @@ def test_results_row_table_one_decimal_and_wide_index():
 
 
 def test_summarize_runs_mean_and_std_per_metric():
+    R = [[1.0, None], [1.0, 1.0]]
     runs = [
-        {"PER": 0.9, "BWT": 0.0, "MEM": 2.0, "wall_time_s": [60, 60]},
-        {"PER": 1.0, "BWT": -0.02, "MEM": 3.0, "wall_time_s": [120, 120], "FWT": 0.1},
+        StreamResults(stream=["a", "b"], R=R, wall_time_s=[60, 60], metrics=m)
+        for m in ({"PER": 0.9, "BWT": 0.0, "MEM": 2.0}, {"PER": 1.0, "BWT": -0.02, "MEM": 3.0})
     ]
+    runs[1].metrics["FWT"], runs[1].wall_time_s = 0.1, [120, 120]
     s = summarize_runs(runs)
     assert s["PER"] == pytest.approx((0.95, 0.05))
     assert s["BWT"] == pytest.approx((-0.01, 0.01))

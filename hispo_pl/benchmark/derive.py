@@ -17,6 +17,7 @@ A derived run's wall time is that evaluation's, not the sibling's training.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -24,6 +25,7 @@ from pathlib import Path
 from typing import TypeVar
 
 from ..errors import RunDirError
+from ..results import StreamResults
 from ..rundir import RunDir
 
 NETWORK_PER_TASK = "hispo_pl.modules.NetworkPerTask"
@@ -101,12 +103,12 @@ def derivable_run(run_dir: Path, committed: Path | None = None) -> bool:
     if not run.has_results() or (kept is not None and not kept.has_results()):
         return False
     try:
-        results = run.read_results()
-        if kept is not None and kept.read_results() != results:
+        results = run.stream_results()
+        if kept is not None and kept.stream_results() != results:
             return False
     except RunDirError:
         return False
-    return all(run.checkpoint(i).exists() for i in range(len(results["stream"])))
+    return all(run.checkpoint(i).exists() for i in range(len(results.stream)))
 
 
 # --- the derived files -----------------------------------------------------------------------
@@ -177,7 +179,7 @@ def _rollout_evaluation(config: dict):
     raise RunDirError(f"the run has no {ROLLOUT_EVALUATION} callback to measure R with")
 
 
-def derive_run(source: str | Path, target: str | Path, record: dict | None = None) -> dict:
+def derive_run(source: str | Path, target: str | Path, record: dict | None = None) -> StreamResults:
     """Write into ``target`` the keep-last run that the finished keep-all run ``source``
     stands for: its checkpoints, ``config.yaml`` and ``task_XX.config.yaml``,
     ``progress.json``, ``results.json`` (R re-measured below the diagonal, PER, BWT, MEM and
@@ -201,13 +203,13 @@ def derive_run(source: str | Path, target: str | Path, record: dict | None = Non
     src, out = RunDir(source), RunDir(target)
     if not derivable_run(src.path):
         raise RunDirError(f"{src}: no finished run with a checkpoint for every task to derive from")
-    results, progress = src.read_results(), src.read_progress() or {}
+    results, progress = src.stream_results(), src.read_progress() or {}
     config_text = keep_last_config_text(src.config_file.read_text(), out.path)
     config = yaml.safe_load(config_text)
     evaluation = _rollout_evaluation(config)
-    stream = [parse_task(t) for t in results["stream"]]
+    stream = [parse_task(t) for t in results.stream]
     out.path.mkdir(parents=True, exist_ok=True)
-    R = [list(row) for row in results["R"]]
+    R = [list(row) for row in results.R]
     wall, phases, module = [], [], None
     threads = torch.get_num_threads()
     if int(config.get("num_threads") or 0) > 0:
@@ -229,14 +231,19 @@ def derive_run(source: str | Path, target: str | Path, record: dict | None = Non
     finally:
         torch.set_num_threads(threads)
     matrix = [[math.nan if v is None else v for v in row] for row in R]
-    derived = {**results, "R": R, "wall_time_s": wall, "phase_time_s": phases}
-    derived.update(continual_metrics(matrix, None))  # FWT reads the diagonal: unchanged
-    derived["stored_bytes"] = module_bytes(module)
-    if "MEM" in results:
-        derived["MEM"] = memory_ratio(
-            derived["stored_bytes"], module_bytes(module.reference_model())
-        )
-    derived["table"] = results_row_table(matrix)
+    metrics = {**results.metrics, **continual_metrics(matrix, None)}  # FWT: the same diagonal
+    stored = module_bytes(module)
+    if "MEM" in metrics:
+        metrics["MEM"] = memory_ratio(stored, module_bytes(module.reference_model()))
+    derived = dataclasses.replace(
+        results,
+        R=R,
+        wall_time_s=wall,
+        phase_time_s=phases,
+        metrics=metrics,
+        stored_bytes=stored,
+        table=results_row_table(matrix),
+    )
     if progress:
         progress = {**progress, "rows": R, "wall_time_s": wall, "phase_time_s": phases}
         if "fingerprint" in progress:  # flat settings: only keep differs

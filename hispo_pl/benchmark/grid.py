@@ -299,7 +299,7 @@ def committed_reader(grid: Grid, config_dir: Path, root: Path) -> Callable[[Cell
         if not run.has_results():
             return None
         try:
-            results, meta = run.read_results(), run.read_run_record()
+            results, meta = run.stream_results(), run.read_run_record()
         except RunDirError:
             return None
         if cell.stream not in tasks:
@@ -308,7 +308,7 @@ def committed_reader(grid: Grid, config_dir: Path, root: Path) -> Callable[[Cell
                 planned_tasks(planned),
                 planned.steps_per_task,
             )
-        if results.get("stream") != tasks[cell.stream]:
+        if results.stream != tasks[cell.stream]:
             return None
         steps = meta.get("steps_per_task")
         if steps is not None and steps != budgets[cell.stream]:
@@ -317,7 +317,7 @@ def committed_reader(grid: Grid, config_dir: Path, root: Path) -> Callable[[Cell
             saved = configured_value([run.config_file], [], key.removeprefix("--"))
             if saved is None or float(saved) != float(value):
                 return None
-        return float(results["PER"])
+        return float(results.metrics["PER"])
 
     return committed_per
 

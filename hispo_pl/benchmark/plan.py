@@ -230,7 +230,7 @@ def foreign_runs(runs: Sequence[PlannedRun], stream: str) -> list[str]:
         if old is not None and old != stream:
             found.append(f"{run.name} ({old})")
         elif run_dir.has_results():
-            tasks = run_dir.read_results()["stream"]
+            tasks = run_dir.stream_results().stream
             if tasks != planned_tasks(run):
                 found.append(f"{run.name} ({' -> '.join(tasks)})")
     return found

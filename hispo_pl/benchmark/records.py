@@ -114,7 +114,7 @@ def run_metrics(results: StreamResults, scratch_results: StreamResults | None = 
 
 
 def mean_std(values: Sequence[float]) -> tuple[float, float]:
-    """Mean and population standard deviation (as :func:`hispo_pl.metrics.summarize_runs`)."""
+    """Mean and population standard deviation (as :func:`hispo_pl.results.summarize_runs`)."""
     arr = np.asarray(values, dtype=float)
     return float(arr.mean()), float(arr.std())
 
