@@ -93,8 +93,19 @@ CASES = {
 
 @pytest.mark.parametrize("case", list(CASES))
 def test_fast_step_matches_reference(case, monkeypatch):
+    _fast_step_matches_reference(case, "cpu", monkeypatch)
+
+
+@pytest.mark.parametrize("case", ["hbc", "hispo-4"])
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_fast_step_matches_reference_on_a_gpu(case, monkeypatch):
+    _fast_step_matches_reference(case, "cuda", monkeypatch)
+
+
+def _fast_step_matches_reference(case, device, monkeypatch):
     torch.manual_seed(0)
-    module, batch = CASES[case](), make_batch()
+    module = CASES[case]().to(device)
+    batch = {k: v.to(device) for k, v in make_batch().items()}
     loss_f, grads_f, ops_f = step_result(module, batch, reference=False, monkeypatch=monkeypatch)
     loss_r, grads_r, ops_r = step_result(module, batch, reference=True, monkeypatch=monkeypatch)
     # the two runs took different routes: one node for the network, or autograd per op
@@ -109,12 +120,22 @@ def test_fast_step_matches_reference(case, monkeypatch):
     assert set(grads_f) == {n for n, p in module.named_parameters() if p.requires_grad}
 
 
-def test_residual_mlp_function_matches_its_definition():
-    """Input gradients too (a 3-D input that requires grad), with and without masks."""
+DEVICES = [
+    "cpu",
+    pytest.param(
+        "cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+    ),
+]
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_residual_mlp_function_matches_its_definition(device):
+    """Input gradients too (a 3-D input that requires grad), with and without masks, on the
+    CPU and on a GPU where there is one."""
     torch.manual_seed(0)
-    net = ResidualMLP(5, 16, 3)
+    net = ResidualMLP(5, 16, 3).to(device)
     params = net.parameter_tensors()
-    x = torch.randn(2, 7, 5, requires_grad=True)
+    x = torch.randn(2, 7, 5, device=device, requires_grad=True)
     dropout = fast.DropoutDraw(fast.dropout_bytes(3, (2, 7, 16), x.device), 26, 256 / 230)
     for m in (dropout, None):
         out_f = fast.residual_mlp(x, params, m)

@@ -25,6 +25,7 @@ import math
 import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from functools import partial
 from typing import NamedTuple
 
 import torch
@@ -143,14 +144,20 @@ def residual_mlp_reference(
     dropout: DropoutDraw | None,
     eps: Sequence[float] = (1e-5, 1e-5, 1e-5),
 ) -> Tensor:
-    """:func:`residual_mlp` with plain autograd ops (its definition, for tests)."""
+    """:func:`residual_mlp` as :func:`~hispo_pl.nn.mlp.residual_mlp_maths` with plain autograd
+    ops: the definition its backward is checked against."""
+    from .mlp import residual_mlp_maths
+
     w0, b0, g0, e0, w1, b1, g1, e1, w2, b2, g2, e2, wh, bh = params
-    m0, m1, m2 = dropout.masks(x.dtype) if dropout is not None else (1.0, 1.0, 1.0)
+    masks = dropout.masks(x.dtype) if dropout is not None else (None,) * 3
     hidden = (w0.shape[0],)
-    h = F.gelu(F.layer_norm(F.linear(x, w0, b0), hidden, g0, e0, eps[0])) * m0
-    b = F.gelu(F.layer_norm(F.linear(h, w1, b1), hidden, g1, e1, eps[1])) * m1
-    b = F.layer_norm(F.linear(b, w2, b2), hidden, g2, e2, eps[2])
-    return F.linear(F.gelu(h + b) * m2, wh, bh)
+    linears = [partial(F.linear, weight=w, bias=b) for w, b in ((w0, b0), (w1, b1), (w2, b2))]
+    norms = [
+        partial(F.layer_norm, normalized_shape=hidden, weight=g, bias=e, eps=eps[i])
+        for i, (g, e) in enumerate(((g0, e0), (g1, e1), (g2, e2)))
+    ]
+    drops = [(lambda h: h) if m is None else partial(torch.mul, other=m) for m in masks]
+    return residual_mlp_maths(x, [*linears, partial(F.linear, weight=wh, bias=bh)], norms, drops)
 
 
 class _AtenLayers:

@@ -4,6 +4,7 @@ Bernoulli entries for gamepad buttons), goal features."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 
 import torch
 import torch.nn.functional as F
@@ -56,8 +57,28 @@ class FastDropout(nn.Module):
         return fast.DropoutDraw(noise, self.threshold, self.scale)
 
 
+Layer = Callable[[Tensor], Tensor]
+
+
+def residual_mlp_maths(
+    x: Tensor, linears: Sequence[Layer], norms: Sequence[Layer], drops: Sequence[Layer]
+) -> Tensor:
+    """The backbone's maths, written once: Linear→LN→GELU→dropout, a residual block
+    (Linear→LN→GELU→dropout→Linear→LN) added to its input, GELU→dropout, and a bare linear
+    head. ``linears``: the input layer, the block's two and the head (4); ``norms``: the
+    input's and the block's two LayerNorms (3); ``drops``: the input's, the block's and the
+    output's dropout (3), each a map of a tensor. Every network of the backbone (plain, a
+    subspace of them, a progressive column) is this with its own layers; the fast path
+    (:func:`~hispo_pl.nn.fast.residual_mlp`) is its hand-written gradient for one set of
+    parameters, pinned to it by ``tests/test_fast_step.py``."""
+    h = drops[0](F.gelu(norms[0](linears[0](x))))
+    b = drops[1](F.gelu(norms[1](linears[1](h))))
+    b = norms[2](linears[2](b))
+    return linears[3](drops[2](F.gelu(h + b)))
+
+
 class ResidualMLP(nn.Module):
-    """Linear→LN→GELU→Dropout, one residual block of the same, and a bare linear head."""
+    """:func:`residual_mlp_maths` with ``nn`` layers; the fast path while it trains."""
 
     def __init__(self, in_dim: int, hidden: int, out_dim: int, dropout: float = 0.1):
         super().__init__()
@@ -81,18 +102,25 @@ class ResidualMLP(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         if self.training and torch.is_grad_enabled() and fast.enabled():
             return fast.residual_mlp(x, self.parameter_tensors(), self.train_dropout(x), self.eps())
-        h = self.inp(x)
-        h = self.out(h + self.block(h))
-        return self.head(h)
+        return residual_mlp_maths(x, self.linears(), self.norms(), self.drops())
+
+    def linears(self) -> tuple[nn.Linear, ...]:
+        """The input layer, the block's two linears and the head."""
+        return self.inp[0], self.block[0], self.block[4], self.head
+
+    def norms(self) -> tuple[nn.LayerNorm, ...]:
+        return self.inp[1], self.block[1], self.block[5]
+
+    def drops(self) -> tuple[FastDropout, ...]:
+        return self.inp[3], self.block[3], self.out[1]
 
     def parameter_tensors(self) -> list[Tensor]:
         """The 14 tensors :func:`~hispo_pl.nn.fast.residual_mlp` takes, in its order."""
-        layers = (self.inp[0], self.inp[1], self.block[0], self.block[1])
-        layers += (self.block[4], self.block[5], self.head)
-        return [t for layer in layers for t in (layer.weight, layer.bias)]
+        (l0, l1, l2, head), (n0, n1, n2) = self.linears(), self.norms()
+        return [t for layer in (l0, n0, l1, n1, l2, n2, head) for t in (layer.weight, layer.bias)]
 
     def eps(self) -> tuple[float, float, float]:
-        return self.inp[1].eps, self.block[1].eps, self.block[5].eps
+        return tuple(norm.eps for norm in self.norms())
 
     def train_dropout(self, x: Tensor) -> fast.DropoutDraw | None:
         """The step's three dropout masks (input, block, output) in one draw."""

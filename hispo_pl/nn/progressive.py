@@ -25,12 +25,12 @@ Choices:
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import torch
 from torch import Tensor, nn
 
-from .mlp import GaussianPolicy, ResidualMLP
+from .mlp import GaussianPolicy, ResidualMLP, residual_mlp_maths
 
 LATERAL_POINTS = ("block_first", "block_second", "head")
 """The linear layers of a column that get laterals, in forward order."""
@@ -105,20 +105,24 @@ class ProgressiveMLP(nn.Module):
         """Column ``j``'s output, given the earlier columns' ``features``; appends its own."""
         col = self.columns[j]
         lat = self.laterals[j - 1] if j > 0 else None
-        lin1, ln1, act1, drop1, lin2, ln2 = col.block
 
-        def linear(layer: nn.Linear, h: Tensor, point: int, adapter: str) -> Tensor:
-            y = layer(h)
-            if lat is not None:
-                y = y + getattr(lat, adapter)(torch.cat(features[point], dim=-1))
-            features[point].append(h)
-            return y
+        def with_lateral(layer: nn.Linear, point: int) -> Callable[[Tensor], Tensor]:
+            """``layer`` plus the laterals from the earlier columns' activations at ``point``;
+            records this column's own."""
 
-        h0 = col.inp(x)
-        a1 = drop1(act1(ln1(linear(lin1, h0, 0, "block_first"))))
-        r = ln2(linear(lin2, a1, 1, "block_second"))
-        h2 = col.out(h0 + r)
-        return linear(col.head, h2, 2, "head")
+            def linear(h: Tensor) -> Tensor:
+                y = layer(h)
+                if lat is not None:
+                    adapter = getattr(lat, LATERAL_POINTS[point])
+                    y = y + adapter(torch.cat(features[point], dim=-1))
+                features[point].append(h)
+                return y
+
+            return linear
+
+        first, *rest = col.linears()
+        linears = [first, *(with_lateral(layer, p) for p, layer in enumerate(rest))]
+        return residual_mlp_maths(x, linears, col.norms(), col.drops())
 
 
 class ProgressivePolicy(GaussianPolicy):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
+from functools import partial
 from typing import Literal
 
 import torch
@@ -18,7 +19,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from hispo_pl.nn import fast
-from hispo_pl.nn.mlp import FastDropout, ResidualMLP, _init_linear
+from hispo_pl.nn.mlp import FastDropout, ResidualMLP, _init_linear, residual_mlp_maths
 from hispo_pl.nn.simplex import check_alpha
 
 AnchorInit = Literal["mean", "random", "first"]
@@ -243,7 +244,6 @@ class SubspaceResidualMLP(nn.Module):
         self.block_linear2 = SubspaceLinear(hidden, hidden, n_anchors)
         self.block_norm2 = SubspaceLayerNorm(hidden, n_anchors)
         self.head = SubspaceLinear(hidden, out_dim, n_anchors)
-        self.act = nn.GELU()
         self.drop_inp = FastDropout(dropout)
         self.drop_block = FastDropout(dropout)
         self.drop_out = FastDropout(dropout)
@@ -260,11 +260,14 @@ class SubspaceResidualMLP(nn.Module):
             dropout = self.drop_inp.draw(3, shape, x)
             eps = (self.inp_norm.eps, self.block_norm1.eps, self.block_norm2.eps)
             return fast.residual_mlp(x, params, dropout, eps)
-        h = self.drop_inp(self.act(self.inp_norm(self.inp_linear(x, alpha), alpha)))
-        b = self.drop_block(self.act(self.block_norm1(self.block_linear1(h, alpha), alpha)))
-        b = self.block_norm2(self.block_linear2(b, alpha), alpha)
-        h = self.drop_out(self.act(h + b))
-        return self.head(h, alpha)
+        linears = (self.inp_linear, self.block_linear1, self.block_linear2, self.head)
+        norms = (self.inp_norm, self.block_norm1, self.block_norm2)
+        return residual_mlp_maths(
+            x,
+            [partial(layer, alpha=alpha) for layer in linears],
+            [partial(layer, alpha=alpha) for layer in norms],
+            (self.drop_inp, self.drop_block, self.drop_out),
+        )
 
     def _layers(self) -> tuple[SubspaceLayer, ...]:
         """The layers in :func:`~hispo_pl.nn.fast.residual_mlp`'s parameter order."""
