@@ -85,6 +85,13 @@ class Progress:
             self.file.write(self.line() + "\n")
             self.file.flush()
 
+    def write(self, text: str) -> None:
+        """Print ``text`` to stdout as a line of its own, above the bar when there is one."""
+        if self._bar is not None:
+            self._bar.write(text, file=sys.stdout)
+        else:
+            print(text, flush=True)
+
     def line(self) -> str:
         unit = f" {self.unit}" if self.unit else ""
         share = 100 * self.count / self.total

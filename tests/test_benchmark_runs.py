@@ -38,7 +38,9 @@ def test_run_local_reports_failures_and_continues(tmp_path, capsys):
     reporter = bm.Reporter(total=3)
     bm.run_local([bad, ok, silent], 2, reporter, {"PYTHONUNBUFFERED": "1"})
     reporter.close()
-    out = capsys.readouterr().out
+    out, err = capsys.readouterr()
+    # into a pipe: lines, and progress as a line at each tenth, never a carriage return
+    assert "\r" not in out + err and "[hispo-pl] benchmark: 3/3 runs (100 %)" in err
     assert "[benchmark] ok seed 0: PER 50.0  2.0 min" in out
     assert f"FAILED bad seed 0 (exit 3); log: {bad.log_path}" in out
     assert "    step 1\n    boom" in out

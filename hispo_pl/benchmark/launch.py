@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
+from ..progress import Progress
 from ..rundir import RunDir
 from .plan import PlannedRun
 
@@ -70,14 +71,14 @@ def run_env(num_threads: int) -> dict[str, str]:
 
 
 class Reporter:
-    """A tqdm bar over runs (skipped ones count as done) and a printed line per finished or
+    """Progress over runs (skipped ones count as done: a bar on a terminal, a line at each
+    tenth in a log, :class:`~hispo_pl.progress.Progress`) and a printed line per finished or
     failed run; a failure shows its log path and the tail of the log."""
 
     def __init__(self, total: int, done: int = 0) -> None:
-        from tqdm.auto import tqdm
-
-        self._write = tqdm.write
-        self.bar = tqdm(total=total, initial=done, desc="benchmark", unit="run")
+        self.bar = Progress("benchmark", total, "runs")
+        self.bar.update(done)
+        self._write = self.bar.write
         self.failed: list[PlannedRun] = []
 
     def __call__(self, run: PlannedRun, outcome: dict) -> None:
