@@ -9,13 +9,12 @@ Prints, in one run:
    input gradients, for exactly the step's shapes) timed one by one with torch, summed, and
    given as steps/s (the speed of a step that did nothing but its matmuls); and a ceiling:
    the same matmuls plus the elementwise kernels the fast path calls for the step's maths
-   (LayerNorm → GELU → dropout forward and backward: the fused kernels at 1 thread where they
-   are built, else aten's; the dropout masks' random bytes), each timed alone at its shapes.
+   (aten's LayerNorm → GELU → dropout forward and backward; the dropout masks' random
+   bytes), each timed alone at its shapes.
 2. Gradient steps/s of HBC, BC and HiSPO with 1 and 4 anchors (both subspaces grown), on
    the reference path (``hispo_pl.nn.fast.reference_path``: plain autograd modules, masks
    drawn byte by byte, the default Adam, a log call every step, glibc's default allocator
-   settings) and on the fast path (``HISPO_PL_NATIVE=0`` in the environment: without the
-   fused kernels), as a bare loop (sampler + step) and through a Lightning
+   settings) and on the fast path, as a bare loop (sampler + step) and through a Lightning
    Trainer (TaskDataModule, a TensorBoard logger, no progress bar; start-up not counted).
    Each path runs in its own worker process (the allocator setting is process-wide); the
    parent alternates between them in short blocks over ``--rounds`` rounds and prints the
@@ -113,31 +112,14 @@ def time_gemms(gemms, reps: int = 30) -> float:
 
 def _network_kernels(h: int, batch: int) -> list:
     """One network's elementwise kernels, as calls: each layer's LayerNorm → GELU → dropout
-    forward and backward once (the network has three), and its masks' random bytes. The
-    layer's kernels are the ones the fast path calls: the fused ones
-    (:mod:`hispo_pl.nn.native`) where they run, else aten's LayerNorm and GELU."""
+    forward and backward once (the network has three; aten's kernels, as the fast path calls
+    them), and its masks' random bytes."""
     import torch
-
-    from hispo_pl.nn import native
 
     aten = torch.ops.aten
     z, grad = torch.randn(batch, h), torch.randn(batch, h)
     gamma, beta = torch.ones(h), torch.zeros(h)
-    keep = torch.randint(0, 256, (batch, h), dtype=torch.uint8)
-    if native.library() is not None:  # as fast.dropout_bytes draws
-        noise = torch.empty(3 * batch * h, dtype=torch.uint8)
-        draw = [lambda: native.random_bytes(noise)]
-    else:
-        words = torch.empty(3 * batch * h // 8, dtype=torch.int64)
-        draw = [lambda: words.random_(-(2**63), None)]
-    if native.usable(z, keep):
-        dropout = (keep, 26, 1.1)
-        _, mu, rstd = native.ln_gelu_drop_forward(z, gamma, beta, 1e-5, dropout)
-        return [
-            lambda: native.ln_gelu_drop_forward(z, gamma, beta, 1e-5, dropout),
-            lambda: native.ln_gelu_drop_backward(grad, (z, mu, rstd), gamma, beta, dropout),
-            *draw,
-        ]
+    words = torch.empty(3 * batch * h // 8, dtype=torch.int64)  # as fast.dropout_bytes draws
     _, mu, rstd = aten.native_layer_norm(z, (h,), gamma, beta, 1e-5)
     return [
         lambda: aten.gelu(z),
@@ -146,7 +128,7 @@ def _network_kernels(h: int, batch: int) -> list:
         lambda: aten.native_layer_norm_backward(
             grad, z, (h,), mu, rstd, gamma, beta, [True, True, True]
         ),
-        *draw,
+        lambda: words.random_(-(2**63), None),
     ]
 
 

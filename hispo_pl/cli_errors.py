@@ -1,12 +1,16 @@
-"""What ``hispo-pl fit`` says when its command line does not parse: one line naming the problem
-and the closest flag, instead of the parser's usage dump. Pure functions over the parser's
-message and the flags it knows."""
+"""What ``hispo-pl`` says when a command line does not parse: one line naming the problem and
+the closest flag, instead of the parser's usage dump. Pure functions over the parser's message
+and the flags it knows, and :class:`VerbParser`, the argparse parser of every verb but ``fit``
+(LightningCLI's, whose errors :mod:`hispo_pl.fit` turns into the same line)."""
 
 from __future__ import annotations
 
+import argparse
 import difflib
 import re
 from collections.abc import Iterable, Mapping
+
+from .errors import ConfigError
 
 HELP = "hispo-pl fit --help lists the flags"
 _UNRECOGNIZED = re.compile(r"unrecognized arguments: (--[^\s=]+)")
@@ -15,8 +19,13 @@ _NESTED = re.compile(r"unrecognized arguments: --([^\s=]+)|Option '([^']+)' is n
 
 
 def closest_flag(flag: str, known: Iterable[str]) -> str | None:
-    """The known flag nearest to ``flag`` (difflib's ratio, at least 0.6), or None."""
-    matches = difflib.get_close_matches(flag, sorted(set(known)), n=1, cutoff=0.6)
+    """The known flag nearest to ``flag``: the one it abbreviates, if only one, else the
+    closest by difflib's ratio (at least 0.6), or None."""
+    known = sorted(set(known))
+    started = [k for k in known if k.startswith(flag)]
+    if len(started) == 1:
+        return started[0]
+    matches = difflib.get_close_matches(flag, known, n=1, cutoff=0.6)
     return matches[0] if matches else None
 
 
@@ -34,7 +43,7 @@ def unknown_flag(message: str) -> str | None:
     return None
 
 
-def parse_error_line(message: str, known: Iterable[str]) -> str:
+def parse_error_line(message: str, known: Iterable[str], help_hint: str = HELP) -> str:
     """One line for a parser error: an unknown flag with the closest ``known`` one, or the
     parser's own message with its lines joined."""
     flag = unknown_flag(message)
@@ -42,7 +51,46 @@ def parse_error_line(message: str, known: Iterable[str]) -> str:
         return " ".join(line.strip() for line in message.splitlines() if line.strip())
     match = closest_flag(flag, known)
     guess = f"; did you mean {match}?" if match else ""
-    return f"unknown flag {flag}{guess} ({HELP})"
+    return f"unknown flag {flag}{guess} ({help_hint})"
+
+
+class VerbParser(argparse.ArgumentParser):
+    """An argparse parser that takes no abbreviation (``--epi`` is not ``--episodes``) and
+    answers a command line it cannot parse with one line (:func:`parse_error_line`: the
+    closest flag of the verb and its sub-verbs, and where the help is), raised as a
+    :class:`~hispo_pl.errors.ConfigError` for ``hispo-pl`` to print."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
+
+    def known_flags(self) -> list[str]:
+        """Every option string of this parser and of its sub-verbs' parsers."""
+        flags = [f for f in self._option_string_actions if f.startswith("--") and f != "--help"]
+        for action in self._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for parser in action.choices.values():
+                    flags += parser.known_flags()
+        return flags
+
+    def parse_args(self, args=None, namespace=None):
+        """Unknown flags are named first, before argparse's complaint about a missing one
+        (which a mistyped flag often causes)."""
+        if args is not None:
+            known = set(self.known_flags()) | {"-h", "--help"}
+            for arg in args:
+                if arg == "--":
+                    break
+                flag = arg.split("=", 1)[0]
+                if flag.startswith("--") and flag not in known:
+                    self.error(f"unrecognized arguments: {flag}")
+        return super().parse_args(args, namespace)
+
+    def error(self, message: str):
+        line = parse_error_line(message, self.known_flags(), f"{self.prog} --help lists them")
+        if unknown_flag(message) is None:
+            line += f" ({self.prog} --help)"
+        raise ConfigError(line)
 
 
 def dotted_flags(config: Mapping, prefix: str = "") -> list[str]:

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import torch
 
+from .cli_errors import VerbParser
 from .errors import Interrupted, UserError
 from .modules.hbc import GoalConditionedBC
 
@@ -30,7 +31,7 @@ def data_main(argv: list[str]) -> int:
     )
     from .data.generation import DEFAULT_SEED, generate_dataset
 
-    parser = argparse.ArgumentParser(prog="hispo-pl data", description="Expert datasets")
+    parser = VerbParser(prog="hispo-pl data", description="Expert datasets")
     sub = parser.add_subparsers(dest="cmd", required=True)
     gen = sub.add_parser("generate", help="collect expert episodes into a local Minari dataset")
     gen.add_argument("names", nargs="+", help=f"maze datasets: {', '.join(known_dataset_names())}")
@@ -158,7 +159,7 @@ def evaluate_main(argv: list[str]) -> int:
     from .evaluation import RolloutEvaluator, module_policy
     from .tasks import parse_task, unseen_variant_tasks
 
-    parser = argparse.ArgumentParser(
+    parser = VerbParser(
         prog="hispo-pl evaluate", description="Roll out a checkpoint's policy on a task"
     )
     add_checkpoint_arguments(parser, required=True)
@@ -224,7 +225,7 @@ def render_main(argv: list[str]) -> int:
     from .data.datasets import DatasetNotFoundError
     from .tasks import TaskSpecError
 
-    parser = argparse.ArgumentParser(
+    parser = VerbParser(
         prog="hispo-pl render",
         description="Draw mazes from above (PNG), with a dataset's or a policy's trajectories",
     )

@@ -4,10 +4,10 @@ and the ``hispo-pl config`` verb that lists, shows and copies them."""
 
 from __future__ import annotations
 
-import argparse
 from importlib import resources
 from pathlib import Path
 
+from .cli_errors import VerbParser
 from .errors import UserError
 
 MAX_CONFIG_NODES = 100_000  # a hand-written config has hundreds; aliases must not explode
@@ -111,7 +111,7 @@ def config_path(name: str, root: Path | None = None) -> Path:
 
 def config_main(argv: list[str]) -> int:
     """``hispo-pl config list|show NAME|copy DEST``."""
-    parser = argparse.ArgumentParser(
+    parser = VerbParser(
         prog="hispo-pl config",
         description="The configs hispo-pl ships: streams, methods, single-task HBC/BC, the demo",
     )

@@ -264,8 +264,7 @@ def test_write_report_from_disk_and_report_only(tmp_path, capsys):
     runtime = list(csv.DictReader((tmp_path / "runtime.csv").open()))
     assert runtime[1] == {"method": "hispo", "seed": "0", "minutes": "2.0", "steps_per_task": ""}
     assert runtime[3]["steps_per_task"] == "5"
-    with pytest.raises(SystemExit):
-        cli_main(["benchmark", "--out", str(tmp_path / "empty"), "--report-only"])
+    assert cli_main(["benchmark", "--out", str(tmp_path / "empty"), "--report-only"]) == 2
     assert "no finished runs" in capsys.readouterr().err
 
 
@@ -378,12 +377,10 @@ def test_cli_help_and_errors(tmp_path, capsys):
         (["--methods", "hispo"], "--stream is required"),
         (["--stream", "pointmaze-1", "--seeds", "x"], "--seeds takes"),
     ):
-        with pytest.raises(SystemExit) as e:
-            cli_main(
-                ["benchmark", "--out", str(tmp_path / "o"), "--config-dir", str(configs), *args]
-            )
-        assert e.value.code == 2
-        assert message in capsys.readouterr().err
+        argv = ["benchmark", "--out", str(tmp_path / "o"), "--config-dir", str(configs), *args]
+        assert cli_main(argv) == 2
+        err = capsys.readouterr().err
+        assert message in err and len(err.strip().splitlines()) == 1 and "usage:" not in err
 
 
 def test_dry_run_prints_commands_and_writes_nothing(tmp_path, capsys):

@@ -18,8 +18,6 @@ from hispo_pl.modules import BC, CSPO, HBC, HiLOW, HiSPO
 from hispo_pl.nn import fast
 from hispo_pl.nn.mlp import ResidualMLP
 
-# one thread: the layout runs train in, where the fused kernels (hispo_pl.nn.native) are used
-
 
 def make_batch(n: int = 96, obs_dim: int = 4, action_dim: int = 2) -> dict[str, torch.Tensor]:
     g = torch.Generator().manual_seed(7)

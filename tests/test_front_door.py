@@ -159,6 +159,28 @@ def test_an_unknown_flag_is_one_line_with_the_closest_one(flag, suggestion, caps
     assert f"unknown flag {flag}; did you mean {suggestion}?" in err
 
 
+@pytest.mark.parametrize(
+    "argv, said",
+    [
+        (["evaluate", "--ckp", "x.ckpt", "--task", "pointmaze-umaze"], "did you mean --ckpt?"),
+        (["evaluate", "--taskk", "pointmaze-umaze"], "did you mean --task?"),
+        (["data", "generate", "pointmaze-umaze", "--epi", "3"], "did you mean --episodes?"),
+        (["render", "amazeville", "--ouut", "x.png"], "did you mean --out?"),
+        (["benchmark", "--strea", "pointmaze-1", "--out", "o", "--dry-run"], "--stream?"),
+        (["config", "copy", "d", "--forse"], "unknown flag --forse"),
+        (["evaluate", "--ckpt", "x.ckpt"], "required: --task (hispo-pl evaluate --help)"),
+    ],
+    ids=["abbreviation", "typo", "data", "render", "benchmark", "config", "missing"],
+)
+def test_every_verb_answers_a_bad_flag_in_one_line(argv, said, capsys):
+    """No verb takes an abbreviation for a flag, and none answers a bad command line with its
+    usage: one line, the closest flag where there is one."""
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "usage:" not in err, err
+    assert said in err and err.startswith(f"hispo-pl {argv[0]}"), err
+
+
 def test_a_missing_config_file_says_how_to_get_the_shipped_ones(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)  # outside a checkout: no configs/ here
     assert main(["fit", "--config", "configs/demo.yaml", "--config", "methods/hispo.yaml"]) == 2

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import os
 
+from ..cli_errors import VerbParser
+
 
 def cpu_count() -> int:
     try:
@@ -14,7 +16,7 @@ def cpu_count() -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = VerbParser(
         prog="hispo-pl benchmark",
         usage=(
             "hispo-pl benchmark --stream STREAM --out OUT [options] [-- fit overrides...]\n"

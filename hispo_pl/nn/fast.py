@@ -4,12 +4,11 @@ A training step of the backbone is a few large matmuls and a dozen elementwise p
 ``[batch, hidden]`` activations. Autograd runs each pass as its own node; here the whole
 network (Linear→LN→GELU→dropout, the residual block, GELU→dropout, the head) is one autograd
 :class:`torch.autograd.Function` with a hand-written backward and no per-op graph
-bookkeeping. Each layer's LayerNorm → GELU → dropout runs as one fused kernel per direction
-(:mod:`~hispo_pl.nn.native`) where it is built and the process has one thread, else as
-aten's kernels (``native_layer_norm``, ``gelu`` and their backwards, in place where a buffer
-is fresh). Dropout is one draw of random bytes for all of a network's masks
+bookkeeping. Each layer's LayerNorm → GELU → dropout runs as aten's kernels
+(``native_layer_norm``, ``gelu`` and their backwards, in place where a buffer is fresh), on
+any device torch runs on. Dropout is one draw of random bytes for all of a network's masks
 (:func:`dropout_bytes`), which keeps :class:`~hispo_pl.nn.mlp.FastDropout`'s distribution
-(keep a unit iff a uniform byte ≥ ``threshold``); the fused kernels read the bytes directly.
+(keep a unit iff a uniform byte ≥ ``threshold``).
 
 Networks take this path while training with gradients enabled; evaluation, ``torch.func``
 transforms (which run in eval mode here) and batched subspace weights keep the plain modules.
@@ -31,8 +30,6 @@ from typing import NamedTuple
 import torch
 import torch.nn.functional as F
 from torch import Tensor
-
-from . import native
 
 _aten = torch.ops.aten
 _INT64_MIN = -(2**63)
@@ -96,14 +93,11 @@ class DropoutDraw(NamedTuple):
 
 
 def dropout_bytes(count: int, shape: Sequence[int], device: torch.device) -> Tensor:
-    """Uniform random bytes, uint8 ``[count, *shape]``: on the fast path from the fused
-    kernels' generator (CPU, where they are built) or the bytes of one draw of full-range
-    64-bit words; on the reference path one draw per byte."""
+    """Uniform random bytes, uint8 ``[count, *shape]``: on the fast path the bytes of one draw
+    of full-range 64-bit words, on the reference path one draw per byte."""
     full = (count, *shape)
     if not _enabled:
         return torch.empty(full, dtype=torch.uint8, device=device).random_()
-    if torch.device(device).type == "cpu" and native.library() is not None:
-        return native.random_bytes(torch.empty(full, dtype=torch.uint8))
     n = math.prod(full)
     words = torch.empty((n + 7) // 8, dtype=torch.int64, device=device)
     return words.random_(_INT64_MIN, None).view(torch.uint8)[:n].view(full)
@@ -190,22 +184,6 @@ class _AtenLayers:
         return (d_pre if dpre else None), da, dg, de, da.sum(0)
 
 
-class _NativeLayers:
-    """The same with the fused kernels (:mod:`~hispo_pl.nn.native`) and the dropout's bytes:
-    each layer saves its input and the rows' statistics; the backward recomputes the rest."""
-
-    def __init__(self, noise: Tensor | None, threshold: int, scale: float, rows: int):
-        keep = [None] * 3 if noise is None else noise.reshape(3, rows, -1).unbind(0)
-        self.dropout = [None if k is None else (k, threshold, scale) for k in keep]
-
-    def forward(self, i: int, a: Tensor, g: Tensor, e: Tensor, eps: float, res=None):
-        y, mu, rstd = native.ln_gelu_drop_forward(a, g, e, eps, self.dropout[i], res)
-        return y, (a, mu, rstd)
-
-    def backward(self, i: int, dy: Tensor, saved, g: Tensor, e: Tensor, res=None, dpre=False):
-        return native.ln_gelu_drop_backward(dy, saved, g, e, self.dropout[i], res, dpre)
-
-
 def _weight_grad(da: Tensor, inp: Tensor) -> Tensor:
     """The weight gradient of ``a = inp @ W.T + b`` (2-D).
 
@@ -218,8 +196,7 @@ def _weight_grad(da: Tensor, inp: Tensor) -> Tensor:
 
 
 class _ResidualMLPFunction(torch.autograd.Function):
-    """Forward and hand-written backward of :func:`residual_mlp` (2-D input): the fused
-    kernels where they are built and take the tensors, else the aten kernels."""
+    """Forward and hand-written backward of :func:`residual_mlp` (2-D input)."""
 
     @staticmethod
     def forward(
@@ -228,10 +205,7 @@ class _ResidualMLPFunction(torch.autograd.Function):
     ):  # fmt: skip
         lead = x.shape[:-1]
         x2 = x.reshape(-1, x.shape[-1])
-        if native.usable(x2, noise, w0, g0, e0, g1, e1, g2, e2):
-            layers = _NativeLayers(noise, threshold, scale, x2.shape[0])
-        else:
-            layers = _AtenLayers(noise, threshold, scale, x.dtype)
+        layers = _AtenLayers(noise, threshold, scale, x.dtype)
         a0 = torch.addmm(b0, x2, w0.t())
         h0, saved0 = layers.forward(0, a0, g0, e0, eps[0])
         u1, saved1 = layers.forward(1, torch.addmm(b1, h0, w1.t()), g1, e1, eps[1])
