@@ -219,7 +219,8 @@ def main(argv: list[str] | None = None) -> int:
         parse_variant(spec)
     if args.report_only:
         base = Path(args.report_only) / "{}" / f"seed{args.seed}"
-        report({path: (Path(str(base).format(f"{args.method}-{path}")), []) for path in PATHS})
+        names = {spec: f"{args.method}-{variant_name(spec)}" for spec in args.compare}
+        report({spec: (Path(str(base).format(name)), []) for spec, name in names.items()})
         return 0
     if args.repeats == 1:
         runs = planned(args)
