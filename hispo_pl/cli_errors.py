@@ -15,6 +15,7 @@ from .errors import ConfigError
 HELP = "hispo-pl fit --help lists the flags"
 _UNRECOGNIZED = re.compile(r"unrecognized arguments: (--[^\s=]+)")
 _PARSER_KEY = re.compile(r'Parser key "([^"]+)"')
+_NOT_SUBCLASS = re.compile(r"Import path (\S+) does not correspond to a subclass of (\w+)")
 _NESTED = re.compile(r"unrecognized arguments: --([^\s=]+)|Option '([^']+)' is not accepted")
 
 
@@ -47,6 +48,12 @@ def parse_error_line(message: str, known: Iterable[str], help_hint: str = HELP) 
     """One line for a parser error: an unknown flag with the closest ``known`` one, or the
     parser's own message with its lines joined."""
     flag = unknown_flag(message)
+    wrong_class = _NOT_SUBCLASS.search(message)
+    if flag is None and wrong_class and wrong_class.group(2) == "GoalConditionedBC":
+        return (
+            f"{wrong_class.group(1)} is not a hispo-pl method: a method subclasses "
+            "hispo_pl.modules.GoalConditionedBC (docs/extending.md, What to subclass)"
+        )
     if flag is None:
         return " ".join(line.strip() for line in message.splitlines() if line.strip())
     match = closest_flag(flag, known)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import doctest
 import json
 import re
+import subprocess
 import sys
 from pathlib import Path
 
@@ -88,6 +89,57 @@ def test_a_streams_task_end_evaluation_and_search_show_their_progress(tiny_umaze
     searching = _progress_lines(captured.err, "task 2: searching high, low")
     assert searching and searching[-1][0] == searching[-1][1]
     assert "Epoch 0" not in captured.out + captured.err  # no Lightning bar in a pipe
+
+
+def test_on_a_terminal_the_task_end_evaluation_and_search_draw_a_bar(
+    tiny_umaze, tmp_path, capsys, monkeypatch
+):
+    """On a terminal the work at a task's end is a bar that moves, not a silent wait."""
+    import hispo_pl.progress
+
+    monkeypatch.setattr(hispo_pl.progress, "interactive", lambda: True)
+    args = tiny_stream_args("hispo", tmp_path, TINY_STREAM)
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "\r" in err  # bars redrawn in place (tqdm's, at most ten times a second)
+    assert re.search(r"task 2/2: evaluating 2 tasks: +\d+%\|[^|]*\| \d/4 ", err), err[-3000:]
+    moved = re.findall(r"task 2: searching high, low: +(\d+)%\|", err)
+    assert moved and max(map(int, moved)) > 0, err[-3000:]
+
+
+def test_a_stream_with_a_from_scratch_reference_records_fwt(tiny_umaze, tmp_path, capsys):
+    assert main(tiny_stream_args("scn", tmp_path / "scn")) == 0
+    scratch = tmp_path / "scn" / "pointmaze-1" / "seed0" / "results.json"
+    assert "FWT" not in json.loads(scratch.read_text())  # no reference: no FWT
+    args = tiny_stream_args("hispo", tmp_path / "hispo", TINY_STREAM)
+    assert main([*args, "--scratch_results", str(scratch)]) == 0
+    results = json.loads(
+        (tmp_path / "hispo" / "pointmaze-1" / "seed0" / "results.json").read_text()
+    )
+    diagonal = [json.loads(scratch.read_text())["R"][k][k] for k in range(2)]
+    expected = sum(results["R"][k][k] - diagonal[k] for k in range(2)) / 2
+    assert results["FWT"] == pytest.approx(expected)
+    assert "FWT" in capsys.readouterr().out
+
+
+def test_a_plain_lightning_module_is_refused_in_one_line(capsys):
+    boring = "lightning.pytorch.demos.boring_classes.BoringModel"
+    args = ["fit", "--config", str(STREAM), "--config", str(HISPO), "--model.class_path", boring]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "usage:" not in err
+    assert f"{boring} is not a hispo-pl method" in err and "GoalConditionedBC" in err
+
+
+def test_gymnasium_robotics_adroit_notice_is_not_printed():
+    """The notice gymnasium-robotics prints on import (about hands no task uses) stays out of
+    every command's output, warnings shown."""
+    code = "from hispo_pl.envs import make_env; make_env('pointmaze-umaze').close()"
+    done = subprocess.run(
+        [sys.executable, "-W", "default", "-c", code], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    assert "Adroit" not in done.stdout + done.stderr
 
 
 def test_a_single_task_fit_into_a_pipe_has_step_lines_and_no_bar(tiny_umaze, tmp_path, capsys):
@@ -241,6 +293,7 @@ def test_the_extras_hold_what_their_commands_need():
         line = re.search(rf"(?m)^{name} = \[(.*)\]", text).group(1)
         return {re.split(r"[<>=\[ ]", d.strip().strip('"'))[0] for d in line.split(",")}
 
+    assert "minari" in extra("create") and "minari[create]" in text  # minari.DataCollector
     assert "nbconvert" in extra("notebook")  # jupyter nbconvert --execute of the notebook
     assert "ray" not in extra("dev") and "ray" in extra("ray")  # its one test is skipped
 
