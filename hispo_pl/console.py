@@ -26,6 +26,10 @@ LIGHTNING_NOTICES = (
     "lightning.fabric.utilities.seed",
 )
 
+TENSORBOARD_GLANCE = "http://localhost:6006/#custom_scalars&_smoothingWeight=0"
+"""TensorBoard's Custom Scalars tab with smoothing off: a stream's values are a few points,
+which TensorBoard's default smoothing would draw away from what was measured."""
+
 
 def say(message: str) -> None:
     print(f"[hispo-pl] {message}", flush=True)
@@ -212,3 +216,4 @@ def print_stream_results(results: dict) -> None:
     print(f"[hispo-pl] results: {run_dir.results_file}")
     if any(Path(results["run_dir"]).glob("events.out.tfevents.*")):
         print(f"[hispo-pl] curves and decisions: tensorboard --logdir {results['run_dir']}")
+        print(f"[hispo-pl] the stream at a glance, unsmoothed: {TENSORBOARD_GLANCE}")

@@ -48,6 +48,7 @@ def test_stream_fit_prints_metrics_logs_and_resumes(tiny_umaze, tmp_path, capsys
     assert results["MEM"] == pytest.approx(results["stored_bytes"] / module_bytes(reference))
     assert f"anchors per subspace: {results['anchors']}" in out
     assert f"tensorboard --logdir {run_dir}" in out
+    assert "#custom_scalars&_smoothingWeight=0" in out  # the forgetting curves as measured
     assert (run_dir / "task_01.ckpt").exists() and (run_dir / "task_02.ckpt").exists()
 
     events = list(run_dir.rglob("events.out.tfevents.*"))
@@ -296,7 +297,7 @@ def test_each_tasks_datamodule_takes_the_parsed_tasks(monkeypatch):
     monkeypatch.setattr(tasks, "parse_task", counting)
     monkeypatch.setattr(datamodule_module, "parse_task", counting)
     make = task_datamodules(first, {"batch_size": 64, "holdout": 0.0, "stream": STREAM})
-    made = [make(task.spec) for task in first.tasks]  # the loop hands over specs
+    made = [make(task) for task in first.tasks]  # the loop hands over the Tasks it holds
     assert parsed == []
     assert [dm.task for dm in made] == first.tasks
     for dm in made:
