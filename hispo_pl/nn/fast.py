@@ -31,6 +31,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from .residual import residual_mlp_maths
+
 _aten = torch.ops.aten
 _INT64_MIN = -(2**63)
 _enabled = True
@@ -138,10 +140,8 @@ def residual_mlp_reference(
     dropout: DropoutDraw | None,
     eps: Sequence[float] = (1e-5, 1e-5, 1e-5),
 ) -> Tensor:
-    """:func:`residual_mlp` as :func:`~hispo_pl.nn.mlp.residual_mlp_maths` with plain autograd
+    """:func:`residual_mlp` as :func:`~hispo_pl.nn.residual.residual_mlp_maths` with plain autograd
     ops: the definition its backward is checked against."""
-    from .mlp import residual_mlp_maths
-
     w0, b0, g0, e0, w1, b1, g1, e1, w2, b2, g2, e2, wh, bh = params
     masks = dropout.masks(x.dtype) if dropout is not None else (None,) * 3
     hidden = (w0.shape[0],)

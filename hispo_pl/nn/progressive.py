@@ -30,7 +30,8 @@ from collections.abc import Callable, Iterator
 import torch
 from torch import Tensor, nn
 
-from .mlp import GaussianPolicy, ResidualMLP, residual_mlp_maths
+from .mlp import GaussianPolicy, ResidualMLP
+from .residual import residual_mlp_maths
 
 LATERAL_POINTS = ("block_first", "block_second", "head")
 """The linear layers of a column that get laterals, in forward order."""

@@ -19,7 +19,8 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from hispo_pl.nn import fast
-from hispo_pl.nn.mlp import FastDropout, ResidualMLP, _init_linear, residual_mlp_maths
+from hispo_pl.nn.mlp import FastDropout, ResidualMLP, _init_linear
+from hispo_pl.nn.residual import residual_mlp_maths
 from hispo_pl.nn.simplex import check_alpha
 
 AnchorInit = Literal["mean", "random", "first"]
