@@ -271,10 +271,11 @@ def perf_vs_memory_figure(rows: Sequence, stream: str = "") -> Figure:
 def iqm_vs_memory_figure(rows: Sequence, title: str) -> Figure:
     """PER's IQM with its interval against mean MEM, one marker per method (rows with
     ``method``, ``streams``, ``means`` and ``iqm``: point, low, high)."""
-    fig = Figure(figsize=(6.4, 4.6))
+    fig = Figure(figsize=(6.4, 4.6), layout="constrained")
     ax = fig.add_subplot()
     markers = "osD^vP*Xh<>p"
-    for i, row in enumerate(r for r in rows if "MEM" in r.means):
+    drawn = [r for r in rows if "MEM" in r.means]
+    for i, row in enumerate(drawn):
         point, low, high = row.iqm
         ax.errorbar(
             row.means["MEM"],
@@ -282,10 +283,13 @@ def iqm_vs_memory_figure(rows: Sequence, title: str) -> Figure:
             yerr=[[point - low], [high - point]],
             fmt=markers[i % len(markers)],
             capsize=3,
-            label=f"{row.method} ({len(row.streams)} streams)",
+            label=f"{row.method} ({len(row.streams)} stream{'' if len(row.streams) == 1 else 's'})",
         )
-    ax.ticklabel_format(useOffset=False)
-    ax.set_ylim(0, 102)  # room for the markers at 100 %
+    xs = [r.means["MEM"] for r in drawn] or [1.0]
+    ax.set_xlim(*span_limits(min(xs), max(xs), min_span=1.0))
+    ax.set_ylim(0, max([r.iqm[2] for r in drawn] + [100.0]) + 2)  # room for a bar at 100 %
+    plain_ticks(ax)
+    ax.xaxis.set_major_formatter("{x:.2f}")
     ax.set_xlabel("MEM (mean stored size / one single-task model)")
     ax.set_ylabel("PER IQM (success %), 95 % CI")
     ax.set_title(title, fontsize=10)

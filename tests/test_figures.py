@@ -45,6 +45,38 @@ def _no_offset(fig, ax) -> bool:
     return ax.xaxis.get_offset_text().get_text() == ax.yaxis.get_offset_text().get_text() == ""
 
 
+def test_the_grid_s_iqm_figure_has_plain_axes_intervals_and_a_title_inside():
+    from types import SimpleNamespace
+
+    from hispo_pl.figures import iqm_vs_memory_figure
+
+    rows = [  # MEM equal to the fifth decimal: one spot, no offset axis
+        SimpleNamespace(method="scn", streams=["a", "b"], means={"MEM": 4.00004}, iqm=(97, 95, 99)),
+        SimpleNamespace(
+            method="ftn", streams=["a", "b"], means={"MEM": 4.00021}, iqm=(96, 90, 100)
+        ),
+        SimpleNamespace(method="hispo", streams=["a"], means={"MEM": 3.1}, iqm=(98, 97, 99)),
+        SimpleNamespace(method="x", streams=["a"], means={}, iqm=(50, 40, 60)),  # no MEM: left out
+    ]
+    fig = iqm_vs_memory_figure(rows, "PER's IQM against MEM over the grid's streams and seeds")
+    (ax,) = fig.axes
+    assert _no_offset(fig, ax)
+    assert all("e" not in t.get_text() for t in ax.get_xticklabels())
+    low, high = ax.get_xlim()
+    assert high - low >= 1.0 and low < 3.1 and high > 4.0002
+    bottom, top = ax.get_ylim()
+    assert bottom <= 0 and top >= 100
+    assert ax.get_xlabel().startswith("MEM") and ax.get_ylabel().startswith("PER IQM")
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == [
+        "scn (2 streams)",
+        "ftn (2 streams)",
+        "hispo (1 stream)",
+    ]
+    assert _inside(fig, ax.title) and _inside(fig, ax.get_legend())
+    caps = [line for container in ax.containers for line in container.lines[1]]
+    assert caps  # each point has its interval drawn
+
+
 def test_success_matrix_names_its_tasks_in_percent():
     fig = success_matrix_figure([[1.0, None, None], [0.9, 0.8, None], [0.9, 0.7, 0.5]], STREAM)
     ax, bar = fig.axes
