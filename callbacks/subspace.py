@@ -178,7 +178,11 @@ SEARCH_TAGS = {
 
 
 def log_decisions(trainer: L.Trainer, module, decisions: list[dict]) -> None:
-    """Append decisions to ``decisions.jsonl`` in the run dir and log them to TensorBoard."""
+    """Append decisions to ``decisions.jsonl`` in the run dir and log them to TensorBoard.
+
+    The anchor counts start with a point at step 0 (one anchor, before any task): with only
+    the tasks' points, TensorBoard's default outlier scaling (it leaves out a chart's extreme
+    5 %) draws a count that grew once, 1 then 2, as an empty chart."""
     records = [Decision.from_json(d) for d in decisions]
     RunDir(trainer.default_root_dir).append_decisions(records)
     logger = trainer.logger
@@ -196,6 +200,8 @@ def log_decisions(trainer: L.Trainer, module, decisions: list[dict]) -> None:
         if isinstance(d, ZeroShotDecision):
             for policy, rate in d.pac_rate.items():
                 metrics[f"zero_shot/{d.subspace}/pac_rate_{policy}"] = rate
+    if module.task_index == 0:  # the one anchor each subspace starts with, at step 0
+        logger.log_metrics({f"anchors/{d.subspace}/count": 1 for d in records}, step=0)
     logger.log_metrics(metrics, step=task)
     if isinstance(logger, TensorBoardLogger):
         text = "\n".join(f"{d.subspace}: {d.decision} (anchors {d.anchors})" for d in records)

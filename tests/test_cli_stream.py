@@ -62,8 +62,8 @@ def test_stream_fit_prints_metrics_logs_and_resumes(tiny_umaze, tmp_path, capsys
     assert [s.step for s in first_task] == [1, 2]
     assert first_task[0].value == pytest.approx(100 * results["R"][0][0])  # in %
     counts = acc.Scalars("anchors/high/count")
-    assert [s.step for s in counts] == [1, 2]
-    assert counts[-1].value == results["anchors"]["high"]
+    assert [s.step for s in counts] == [0, 1, 2]  # step 0: the one anchor it starts with
+    assert counts[0].value == 1 and counts[-1].value == results["anchors"]["high"]
     _assert_stream_report(run_dir, results)
 
     # the same command again: every task is finished, nothing trains, same results
