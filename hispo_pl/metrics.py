@@ -143,6 +143,12 @@ METRICS: tuple[Metric, ...] = (
 METRIC = {m.name: m for m in METRICS}
 
 
+def mean_std(values: ArrayLike) -> tuple[float, float]:
+    """Mean and population standard deviation, as the paper's tables report runs over seeds."""
+    arr = np.asarray(values, dtype=float)
+    return float(arr.mean()), float(arr.std())
+
+
 def continual_metrics(
     R: ArrayLike,
     R_scratch: ArrayLike | None = None,

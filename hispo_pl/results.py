@@ -16,7 +16,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .metrics import METRICS
+from .metrics import METRICS, mean_std
 
 Column = tuple[str, str, Callable[[Any], str]]
 """A table column: header, Markdown alignment (``---`` or ``---:``), the cell of a record."""
@@ -335,7 +335,7 @@ def summarize_runs(runs: Sequence[StreamResults]) -> dict[str, tuple[float, floa
     }
     if all(r.wall_time_s is not None for r in runs):
         columns["minutes"] = [sum(r.wall_time_s) / 60 for r in runs]
-    return {k: (float(np.mean(v)), float(np.std(v))) for k, v in columns.items()}
+    return {k: mean_std(v) for k, v in columns.items()}
 
 
 def fwt_reference(scratch: StreamResults | None, n_tasks: int) -> list[float] | None:

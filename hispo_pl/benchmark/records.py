@@ -7,10 +7,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import RunDirError
-from ..metrics import METRICS, continual_metrics
+from ..metrics import METRICS, continual_metrics, mean_std
 from ..results import Decision, StreamResults, fwt_reference
 from ..rundir import RunDir
 from .plan import PLAN_FILE, RUNS_DIR
@@ -111,12 +109,6 @@ def run_metrics(results: StreamResults, scratch_results: StreamResults | None = 
     if results.anchors:
         out["anchors"] = {k: float(v) for k, v in results.anchors.items()}
     return out
-
-
-def mean_std(values: Sequence[float]) -> tuple[float, float]:
-    """Mean and population standard deviation (as :func:`hispo_pl.results.summarize_runs`)."""
-    arr = np.asarray(values, dtype=float)
-    return float(arr.mean()), float(arr.std())
 
 
 def format_mean_std(mean: float, std: float, scale: float = 100.0, digits: int = 1) -> str:
