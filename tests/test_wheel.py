@@ -18,6 +18,8 @@ import pytest
 from helpers import ROOT, TINY_STREAM
 
 SOURCES = ("pyproject.toml", "README.md", "LICENSE", "hispo_pl", "callbacks", "configs")
+# hispo_pl/callbacks: a symlink some working copies keep to run from the tree; the package maps
+# hispo_pl.callbacks to callbacks/ itself
 IGNORE = {"ignore": shutil.ignore_patterns("__pycache__", "callbacks"), "symlinks": True}
 CLEAN_ENV = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}  # no checkout on the path
 
