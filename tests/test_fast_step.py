@@ -14,7 +14,7 @@ from lightning.pytorch.loggers import Logger
 from torch.utils.data import DataLoader
 
 from hispo_pl.config import BackboneConfig
-from hispo_pl.modules import BC, CSPO, HBC, HiLOW, HiSPO
+from hispo_pl.modules import BC, CSP, CSPO, HBC, HiLOW, HiSPO
 from hispo_pl.nn import fast
 from hispo_pl.nn.mlp import ResidualMLP
 
@@ -168,6 +168,24 @@ def test_optimiser_is_fused_on_the_fast_path_only(reference):
     with fast.reference_path() if reference else nullcontext():
         opt = module.configure_optimizers()["optimizer"]
     assert opt.defaults["fused"] is (not reference)
+
+
+@pytest.mark.parametrize("method", [HBC, CSP])
+def test_a_module_builds_its_optimiser_without_a_trainer(method):
+    """As a notebook or a benchmark script steps a module by hand: a constant rate then."""
+    module = method(4, 2)
+    built = module.configure_optimizers()
+    opt = built["optimizer"] if isinstance(built, dict) else built
+    assert isinstance(opt, torch.optim.Adam)
+    if isinstance(built, dict):  # its schedule holds the rates where there is no step budget
+        rates = [g["lr"] for g in opt.param_groups]
+        for _ in range(5):
+            opt.step()
+            built["lr_scheduler"]["scheduler"].step()
+        assert [g["lr"] for g in opt.param_groups] == rates
+    assert {id(p) for g in opt.param_groups for p in g["params"]} == {
+        id(p) for p in module.parameters() if p.requires_grad
+    }
 
 
 def test_fused_adam_update_matches_default_adam():

@@ -192,7 +192,7 @@ class CSP(CSPO):
         ids = {id(p) for p in critic}
         policy = [p for p in self.parameters() if p.requires_grad and id(p) not in ids]
         groups, schedules = [], []
-        steps = self.trainer.max_steps if self.trainer is not None else -1
+        steps = self._trainer.max_steps if self._trainer is not None else -1
         cosine = self.optim_config.schedule == "cosine" and steps is not None and steps > 0
         if policy:
             groups.append({"params": policy, "lr": self.lr})

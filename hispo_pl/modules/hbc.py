@@ -203,7 +203,7 @@ class GoalConditionedBC(L.LightningModule):
         opt = torch.optim.Adam(params, lr=self.lr, fused=fast.enabled())
         if fast.enabled():
             fast.retain_freed_memory()
-        steps = self.trainer.max_steps if self.trainer is not None else -1
+        steps = self._trainer.max_steps if self._trainer is not None else -1
         if self.optim_config.schedule == "constant" or steps is None or steps <= 0:
             return opt
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=steps)
