@@ -55,13 +55,13 @@ def build(method: str, obs_dim: int, action_dim: int):
 
 
 def step_networks(method: str, dims: dict[str, int]) -> list[tuple[int, int, int]]:
-    """(inputs, hidden, outputs) of each network a training step runs."""
-    f, obs, act, goal = 2 * dims["goal"] + 1, dims["obs"], dims["action"], dims["goal"]
-    high_in = f + obs + 2 * goal
-    if method == "BC":
-        return [(high_in, 256, 2 * act)]
-    # HBC and HiSPO (mixing the anchors is a few small products, left out)
-    return [(high_in, 64, 2 * goal), (f + obs, 256, 2 * act)]
+    """(inputs, hidden, outputs) of each network a training step runs, read off the module's
+    own layers (HiSPO's are HBC's: mixing the anchors is a few small products, left out)."""
+    from hispo_pl.nn.mlp import ResidualMLP
+
+    module = build("HBC" if method.startswith("HiSPO") else method, dims["obs"], dims["action"])
+    nets = [m for m in module.modules() if isinstance(m, ResidualMLP)]
+    return [(n.inp[0].in_features, n.inp[0].out_features, n.head.out_features) for n in nets]
 
 
 def step_gemms(method: str, dims: dict[str, int], batch: int) -> list[tuple[str, tuple]]:

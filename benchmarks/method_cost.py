@@ -1,12 +1,14 @@
-"""What a PNN training step costs as its columns grow, against its arithmetic.
+"""What the dearest methods' training steps cost, against their arithmetic.
 
-    python benchmarks/column_cost.py [--task pointmaze-umaze] [--columns 4] [--steps 30]
+    python benchmarks/method_cost.py [--task pointmaze-umaze] [--columns 4] [--steps 30]
         [--rounds 3] [--batch-size 1024] [--threads 1]
 
 A PNN step on task ``k`` runs the ``k`` frozen columns before it (no gradients) and the newest
 column with its laterals from all of them (gradients), so its work grows about quadratically
-with the task. For HBC (one network pair, what SCN trains per task) and PNN with 1 to
-``--columns`` columns, this prints, in one run:
+with the task. A CSP step is CSPO's plus its critic's (IQL: V and twin Q trained, the target
+Q and V at the next state without gradients). For HBC (one network pair, what SCN trains per
+task), PNN with 1 to ``--columns`` columns, CSPO and CSP (one anchor each), this prints, in
+one run:
 
 - the step's floating-point operations, counted by torch (``FlopCounterMode``) over the
   product's own forward and backward (``module.losses``), and their ratio to HBC's;
@@ -25,11 +27,11 @@ import time
 
 
 def build(method: str, obs_dim: int, action_dim: int):
-    """HBC, or PNN grown to ``PNN-k``'s ``k`` columns (the newest trainable)."""
-    from hispo_pl.modules import HBC, PNN
+    """HBC, CSPO, CSP, or PNN grown to ``PNN-k``'s ``k`` columns (the newest trainable)."""
+    from hispo_pl.modules import CSP, CSPO, HBC, PNN
 
-    if method == "HBC":
-        return HBC(obs_dim, action_dim)
+    if method in ("HBC", "CSPO", "CSP"):
+        return {"HBC": HBC, "CSPO": CSPO, "CSP": CSP}[method](obs_dim, action_dim)
     module = PNN(obs_dim, action_dim)
     for task in range(int(method.split("-")[1])):
         if task:
@@ -71,25 +73,29 @@ def main() -> None:
     task = parse_task(args.task)
     generate_missing(task)  # as a fit does: collect the maze's data on first use
     her = HERConfig(task.defaults.waysteps, task.defaults.her_temperature)
-    sampler = HERSampler(load_episodes(task), her, args.batch_size, seed=0)
+    # transitions for CSP's critic; the other keys are the same batches without them
+    sampler = HERSampler(load_episodes(task), her, args.batch_size, seed=0, transitions=True)
     fam = task.env_family
 
-    methods = ["HBC", *(f"PNN-{k}" for k in range(1, args.columns + 1))]
+    methods = ["HBC", *(f"PNN-{k}" for k in range(1, args.columns + 1)), "CSPO", "CSP"]
     models, flops = {}, {}
     for method in methods:
         torch.manual_seed(0)
         model = build(method, fam.obs_dim, fam.action_dim).train()
         flops[method] = step_flops(model, sampler.sample())
-        models[method] = model, model.configure_optimizers()
+        built = model.configure_optimizers()
+        models[method] = model, built["optimizer"] if isinstance(built, dict) else built
 
     def rate(method: str) -> float:
         model, opt = models[method]
 
         def step():
-            loss = model.losses(sampler.sample())["loss"]
+            batch = sampler.sample()
+            loss = model.losses(batch)["loss"]
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
+            model.on_train_batch_end(None, batch, 0)  # CSP's target networks follow
 
         for _ in range(3):
             step()
