@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import shutil
+import sys
 from pathlib import Path
+from types import ModuleType
 
 import lightning as L
 import torch
@@ -239,3 +242,13 @@ def error_lines(err: str) -> list[str]:
     """What a command wrote to stderr apart from its progress lines (``[hispo-pl] ...``):
     the lines a user error must fit in one of."""
     return [line for line in err.splitlines() if not line.startswith("[hispo-pl] ")]
+
+
+def load_benchmark(name: str) -> ModuleType:
+    """The script ``benchmarks/<name>.py`` as a module (the folder is not a package), registered
+    in ``sys.modules`` so that its dataclasses find their module."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / f"benchmarks/{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module

@@ -4,25 +4,10 @@ that ``benchmarks/step_speed.py`` builds its floor from."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import torch
-from helpers import random_batch
+from helpers import load_benchmark, random_batch
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def load(name: str):
-    spec = importlib.util.spec_from_file_location(name, ROOT / f"benchmarks/{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-method_cost, step_speed = load("method_cost"), load("step_speed")
+method_cost, step_speed = load_benchmark("method_cost"), load_benchmark("step_speed")
 
 
 def test_pnn_k_trains_only_its_newest_column_as_on_task_k():

@@ -4,24 +4,18 @@ the setting's overrides, the benchmark's runner launches and skips its runs, a f
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import pytest
+from helpers import load_benchmark
 
 from hispo_pl.benchmark import PlannedRun, finished_run_dirs, pending_runs
 from hispo_pl.cli import main as cli_main
 from hispo_pl.rundir import RunDir
 
 ROOT = Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location(
-    "single_task_table", ROOT / "benchmarks/single_task_table.py"
-)
-study = importlib.util.module_from_spec(spec)
-sys.modules[spec.name] = study  # its dataclasses look their module up
-spec.loader.exec_module(study)
+study = load_benchmark("single_task_table")
 
 
 CONFIG = str(ROOT / "configs/hbc/pointmaze-{maze}.yaml")

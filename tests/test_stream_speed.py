@@ -5,19 +5,16 @@ reference path (every switch of the fast path reads it while the command runs)."
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
-import sys
 from pathlib import Path
+
+from helpers import load_benchmark
 
 from hispo_pl.benchmark.plan import fit_argv, stream_config_path
 from hispo_pl.nn import fast
 
 ROOT = Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location("stream_speed", ROOT / "benchmarks/stream_speed.py")
-script = importlib.util.module_from_spec(spec)
-sys.modules[spec.name] = script
-spec.loader.exec_module(script)
+script = load_benchmark("stream_speed")
 
 
 def test_runs_are_the_benchmarks_fit_commands(tmp_path):
