@@ -228,6 +228,16 @@ def test_grid_end_to_end_exports_derives_and_resumes(tiny_umaze, tmp_path, capsy
     printed = capsys.readouterr().out
     assert "pointmaze-1: 4 done, 0 to run" in printed and "FAILED" not in printed
 
+    # a run stopped between its results and its export is exported by the next launch
+    other = 64 if best == 32 else 32
+    lost = root / f"pointmaze-1/sweeps/scn-batch{other}/seed0"
+    kept = (lost / "results.json").read_bytes()
+    shutil.rmtree(lost)
+    assert cli_main(args) == 0
+    printed = capsys.readouterr().out
+    assert f"scn-batch{other}/seed0: finished before its export" in printed
+    assert (lost / "results.json").read_bytes() == kept and "FAILED" not in printed
+
 
 def test_grid_report_embeds_rebuild_from_committed_files(tmp_path, monkeypatch):
     pytest.importorskip("rliable")

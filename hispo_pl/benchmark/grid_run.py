@@ -133,6 +133,13 @@ def _run_cells(
     for stream in dict.fromkeys(c.stream for c in todo):
         mine = [r for r in runs if cells[r.run_dir].stream == stream]
         pending += pending_runs(mine, stream, made_on)
+    for run in runs:  # finished in ``work`` but stopped before its export
+        if run not in pending and run.results_path.exists():
+            cell = cells[run.run_dir]
+            out = export_cell(run.run_dir, cell, root)
+            print(f"[grid] {cell.name}: finished before its export, exported to {out}")
+            if write_reports is not None:
+                write_reports([cell.stream])
     needed: dict[str, int] = {}
     for run in pending:
         for name, episodes in datasets_needed(run.configs, run.argv).items():
