@@ -238,6 +238,14 @@ def test_grid_end_to_end_exports_derives_and_resumes(tiny_umaze, tmp_path, capsy
     assert f"scn-batch{other}/seed0: finished before its export" in printed
     assert (lost / "results.json").read_bytes() == kept and "FAILED" not in printed
 
+    # a dry run names the seed it would copy from its sweep and copies nothing
+    copied = root / "pointmaze-1/scn/seed0"
+    shutil.rmtree(copied)
+    assert cli_main([*args, "--dry-run"]) == 0
+    assert "1 to copy from their sweep" in capsys.readouterr().out and not copied.exists()
+    assert cli_main(args) == 0
+    assert "the same run as" in capsys.readouterr().out and copied.is_dir()
+
 
 def test_grid_report_embeds_rebuild_from_committed_files(tmp_path, monkeypatch):
     pytest.importorskip("rliable")

@@ -86,7 +86,7 @@ def run_grid(
     attempted: set[str] = set()
     while True:
         plan = plan_cells(grid, streams, committed_per, sibling, derivable)
-        for target, source in plan.derived:
+        for target, source in plan.derived if not dry_run else ():
             export_cell(source.result_dir(root), target, root, derived_from=source)
             print(f"[grid] {target.name}: the same run as {source.name}, copied")
         for target, source in plan.from_sibling if not dry_run else ():
