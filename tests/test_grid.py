@@ -72,6 +72,20 @@ def test_grid_refuses_fit_arguments_of_the_command_line(capsys):
     assert "put fit arguments and the budget in the grid file" in capsys.readouterr().err
 
 
+def test_methods_and_seeds_select_part_of_the_grid(tmp_path, capsys):
+    args = ["benchmark", "--grid", "paper", "--part", "pointmaze-1", "--out", str(tmp_path / "w")]
+    args += ["--export", str(tmp_path / "r"), "--methods", "scn", "--dry-run"]
+    assert cli_main([*args, "--seeds", "1,2"]) == 0
+    planned = [line for line in capsys.readouterr().out.splitlines() if " fit " in line]
+    assert [line.split("--trainer.logger.init_args.version ")[1][:5] for line in planned] == [
+        "seed1",
+        "seed2",
+    ]
+    assert all("--trainer.logger.init_args.name scn " in line for line in planned)
+    assert cli_main([*args, "--seeds", "0,7"]) == 2
+    assert "--seeds 0,7: the grid paper has seeds 0, 1, 2" in capsys.readouterr().err
+
+
 def test_parts_streams_and_unknown_names():
     grid = gr.grid_from_dict(GRID, "g")
     assert gr.grid_streams(grid, None) == ["pointmaze-1", "pointmaze-2"]

@@ -33,10 +33,30 @@ def _print_report(out: Path, stream: str | None) -> None:
         print(f"[benchmark] wrote {path}")
 
 
+def _grid_selection(grid, methods: str, seeds: str | None):
+    """The part of ``grid`` that ``--methods`` and ``--seeds`` select, for what to run; the
+    reports always cover the whole grid.
+
+    Raises:
+        ValueError: a method or seed the grid does not have.
+    """
+    from dataclasses import replace
+
+    if methods.strip() != "all":
+        grid = replace(grid, methods=tuple(plan.select_methods(methods, grid.methods)))
+    if seeds is not None:
+        chosen = plan.parse_seeds(seeds)
+        unknown = [s for s in chosen if s not in grid.seeds]
+        if unknown:
+            have = ", ".join(map(str, grid.seeds))
+            raise ValueError(f"--seeds {seeds}: the grid {grid.name} has seeds {have}")
+        grid = replace(grid, seeds=tuple(chosen))
+    return grid
+
+
 def _grid_main(parser, args, extra: list[str]) -> int:
     """``--grid``: plan the grid against ROOT (``--export``), run what is left in WORK
     (``--out``), export each run and rebuild the stream's and the grid's reports."""
-    from dataclasses import replace
 
     from ..errors import ConfigError
     from .grid import grid_streams, load_grid
@@ -54,8 +74,7 @@ def _grid_main(parser, args, extra: list[str]) -> int:
     try:
         grid = load_grid(args.grid, config_dir)
         streams = grid_streams(grid, args.part)
-        if args.methods.strip() != "all":
-            grid = replace(grid, methods=tuple(plan.select_methods(args.methods, grid.methods)))
+        chosen = _grid_selection(grid, args.methods, args.seeds)
     except (ConfigError, ValueError) as e:
         parser.error(str(e))
     if extra or args.steps_per_task is not None:
@@ -88,7 +107,7 @@ def _grid_main(parser, args, extra: list[str]) -> int:
     workers = args.workers or max(1, cpu_count() // args.num_threads)
     try:
         failed = run_grid(
-            grid,
+            chosen,
             streams,
             config_dir,
             Path(args.out),
@@ -156,7 +175,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         stream_config = plan.stream_config_path(args.stream, config_dir)
         methods = plan.select_methods(args.methods, plan.known_methods(config_dir))
-        seeds = plan.parse_seeds(args.seeds)
+        seeds = plan.parse_seeds(args.seeds or "3")
     except (ValueError, FileNotFoundError) as e:
         parser.error(str(e))
     workers = args.workers or max(1, cpu_count() // args.num_threads)

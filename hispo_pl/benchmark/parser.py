@@ -54,8 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--seeds",
-        default="3",
-        help="a count N (seeds 0..N-1) or a comma list such as 0,4 (default: 3)",
+        help="a count N (seeds 0..N-1) or a comma list such as 0,4 (default: 3; with --grid: "
+        "the grid's seeds, of which these select some)",
     )
     parser.add_argument("--out", help="output folder (runs/, tables, figure)")
     parser.add_argument(
