@@ -133,13 +133,16 @@ def _run_cells(
     for stream in dict.fromkeys(c.stream for c in todo):
         mine = [r for r in runs if cells[r.run_dir].stream == stream]
         pending += pending_runs(mine, stream, made_on)
+
+    def export(run: PlannedRun, how: str = "exported to") -> None:
+        cell = cells[run.run_dir]
+        print(f"[grid] {cell.name}: {how} {export_cell(run.run_dir, cell, root)}")
+        if write_reports is not None:
+            write_reports([cell.stream])
+
     for run in runs:  # finished in ``work`` but stopped before its export
         if run not in pending and run.results_path.exists():
-            cell = cells[run.run_dir]
-            out = export_cell(run.run_dir, cell, root)
-            print(f"[grid] {cell.name}: finished before its export, exported to {out}")
-            if write_reports is not None:
-                write_reports([cell.stream])
+            export(run, "finished before its export, exported to")
     needed: dict[str, int] = {}
     for run in pending:
         for name, episodes in datasets_needed(run.configs, run.argv).items():
@@ -149,12 +152,8 @@ def _run_cells(
 
     def finished(run: PlannedRun, outcome: dict) -> None:
         reporter(run, outcome)
-        if outcome["results"] is None:
-            return
-        cell = cells[run.run_dir]
-        print(f"[grid] {cell.name}: exported to {export_cell(run.run_dir, cell, root)}")
-        if write_reports is not None:
-            write_reports([cell.stream])
+        if outcome["results"] is not None:
+            export(run)
 
     try:
         run_local(pending, workers, finished, run_env(num_threads))
