@@ -16,6 +16,10 @@ from matplotlib.ticker import ScalarFormatter
 from .metrics import METRICS
 from .rundir import task_label
 
+# Twelve distinct colours (matplotlib's ten, then black and navy): a method's marker and
+# colour together never repeat in a figure of the paper's twelve methods.
+METHOD_COLORS = tuple(f"C{i}" for i in range(10)) + ("black", "navy")
+
 TRIANGLE = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, np.sqrt(3) / 2]])
 
 
@@ -247,16 +251,32 @@ def perf_vs_memory_figure(rows: Sequence, stream: str = "") -> Figure:
     ax.grid(alpha=0.3)
     if rows:
         ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.draw_without_rendering()  # the layout's final axes, so labels are placed as drawn
-    fontsize = 8
     centres = [(r.metrics["MEM"][0], 100 * r.metrics["PER"][0]) for r in rows]
-    points = ax.transData.transform(centres) * 72 / fig.dpi
-    sizes = [(0.62 * fontsize * len(r.method), 1.2 * fontsize) for r in rows]
+    label_markers(fig, ax, [r.method for r in rows], centres, colors)
+    return fig
+
+
+def label_markers(
+    fig: Figure,
+    ax,
+    names: Sequence[str],
+    centres: Sequence[tuple[float, float]],
+    colors: Sequence,
+    fontsize: float = 8,
+    leaders: bool = False,
+) -> None:
+    """Write each name next to its marker (data coordinates ``centres``) in its colour, where
+    :func:`label_offsets` finds room: a crowded corner is read without the legend.
+    ``leaders``: a thin line from each label to its marker, so a label pushed past a
+    neighbour's marker still points at its own."""
+    fig.draw_without_rendering()  # the layout's final axes, so labels are placed as drawn
+    points = ax.transData.transform(centres) * 72 / fig.dpi if centres else []
+    sizes = [(0.62 * fontsize * len(name), 1.2 * fontsize) for name in names]
     frame = ax.get_window_extent().extents * 72 / fig.dpi
     offsets = label_offsets([tuple(p) for p in points], sizes, bounds=tuple(frame))
-    for row, centre, color, (dx, dy) in zip(rows, centres, colors, offsets, strict=True):
+    for name, centre, color, (dx, dy) in zip(names, centres, colors, offsets, strict=True):
         ax.annotate(
-            row.method,
+            name,
             centre,
             xytext=(dx, dy),
             textcoords="offset points",
@@ -264,8 +284,10 @@ def perf_vs_memory_figure(rows: Sequence, stream: str = "") -> Figure:
             va="bottom",
             color=color,
             fontsize=fontsize,
+            arrowprops=dict(arrowstyle="-", color=color, lw=0.6, shrinkA=0, shrinkB=4)
+            if leaders
+            else None,
         )
-    return fig
 
 
 def iqm_vs_memory_figure(rows: Sequence, title: str) -> Figure:
@@ -282,12 +304,14 @@ def iqm_vs_memory_figure(rows: Sequence, title: str) -> Figure:
             point,
             yerr=[[point - low], [high - point]],
             fmt=markers[i % len(markers)],
+            color=METHOD_COLORS[i % len(METHOD_COLORS)],
             capsize=3,
             label=f"{row.method} ({len(row.streams)} stream{'' if len(row.streams) == 1 else 's'})",
         )
     xs = [r.means["MEM"] for r in drawn] or [1.0]
     ax.set_xlim(*span_limits(min(xs), max(xs), min_span=1.0))
-    ax.set_ylim(0, max([r.iqm[2] for r in drawn] + [100.0]) + 2)  # room for a bar at 100 %
+    ax.set_ylim(0, max([r.iqm[2] for r in drawn] + [100.0]) + 5)  # a bar and a label at 100 %
+    ax.set_yticks(range(0, 101, 20))
     plain_ticks(ax)
     ax.xaxis.set_major_formatter("{x:.2f}")
     ax.set_xlabel("MEM (mean stored size / one single-task model)")
@@ -296,4 +320,7 @@ def iqm_vs_memory_figure(rows: Sequence, title: str) -> Figure:
     ax.grid(alpha=0.3)
     if ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=7, loc="lower right")
+    centres = [(r.means["MEM"], r.iqm[0]) for r in drawn]
+    colors = [METHOD_COLORS[i % len(METHOD_COLORS)] for i in range(len(drawn))]
+    label_markers(fig, ax, [r.method for r in drawn], centres, colors, fontsize=7, leaders=True)
     return fig

@@ -75,6 +75,30 @@ def test_the_grid_s_iqm_figure_has_plain_axes_intervals_and_a_title_inside():
     assert _inside(fig, ax.title) and _inside(fig, ax.get_legend())
     caps = [line for container in ax.containers for line in container.lines[1]]
     assert caps  # each point has its interval drawn
+    # scn and ftn share a spot: each is named next to it, the names apart, each with a line
+    # to its own marker, and no two methods drawn alike
+    renderer = _drawn(fig)
+    assert sorted(t.get_text() for t in ax.texts) == ["ftn", "hispo", "scn"]
+    boxes = [t.get_window_extent(renderer) for t in ax.texts]
+    assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1 :])
+    assert all(t.arrow_patch is not None for t in ax.texts)
+    styles = {(c.lines[0].get_color(), c.lines[0].get_marker()) for c in ax.containers}
+    assert len(styles) == len(ax.containers) == 3
+
+
+def test_twelve_methods_are_drawn_twelve_ways():
+    from types import SimpleNamespace
+
+    from hispo_pl.figures import iqm_vs_memory_figure
+
+    rows = [
+        SimpleNamespace(method=f"m{i}", streams=["a"], means={"MEM": 1.0 + i}, iqm=(50, 40, 60))
+        for i in range(12)
+    ]
+    (ax,) = iqm_vs_memory_figure(rows, "twelve").axes
+    styles = {(c.lines[0].get_color(), c.lines[0].get_marker()) for c in ax.containers}
+    colors = {c.lines[0].get_color() for c in ax.containers}
+    assert len(styles) == len(colors) == 12
 
 
 def test_success_matrix_names_its_tasks_in_percent():

@@ -214,8 +214,9 @@ def beside_paper_markdown(committed: Committed) -> str:
     legend = (
         "\nThe paper's figures as printed (mean ± std over three seeds; FZ is frz; its "
         "VideoGame-2 MEM column for FTN, FRZ, L2 and EWC reads 1.7, 2.7, 2.7 and 1.9, as "
-        "printed). Ours: mean ± std (population) over the seeds committed under docs/results "
-        "(one seed: its value), success ×100. Table 2 pools the runs of AntMaze-1 and "
+        "printed; on AntMaze its SC1 MEM and its L2 and EWC BWT read 0.0, as printed). "
+        "Ours: mean ± std (population) over the seeds committed under docs/results (one "
+        "seed: its value), success ×100. Table 2 pools the runs of AntMaze-1 and "
         "AntMaze-2. The protocols differ (data, budget, success test, inputs, tuning): see "
         "the table of differences on this page.\n"
     )
