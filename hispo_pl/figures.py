@@ -233,6 +233,7 @@ def perf_vs_memory_figure(rows: Sequence, stream: str = "") -> Figure:
             xerr=xs if several else None,
             yerr=100 * ys if several else None,
             fmt=markers[i % len(markers)],
+            color=METHOD_COLORS[i % len(METHOD_COLORS)],
             capsize=3,
             label=f"{row.method} ({len(row.seeds)} seed{'s' if several else ''}"
             f"{'' if several else ', no interval'})",
