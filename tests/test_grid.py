@@ -275,6 +275,9 @@ def test_grid_report_embeds_rebuild_from_committed_files(tmp_path, monkeypatch):
     monkeypatch.undo()
     aggregate = (root / "grid-g/aggregate.md").read_text()
     assert "| scn | 2 of 2 |" in aggregate and "| hispo | 2 of 2 |" in aggregate
+    # the paper's PER on the same two streams (its Table 6: 98.0 and 99.8), then its Table 1
+    (hispo,) = [line for line in aggregate.splitlines() if line.startswith("| hispo |")]
+    assert hispo.endswith("| 98.9 | 87.7 | 0.0 | 2.0 |")
     doc = tmp_path / "page.md"
     doc.write_text(
         f"x\n{EMBED_BEGIN}{root / 'grid-g/aggregate.md'} -->\nstale\n<!-- end report -->\n"

@@ -105,3 +105,12 @@ def paper_row(stream: str, method: str) -> dict[str, Stat] | None:
     none (it ran no CSP, CSPO or HiLOW per stream)."""
     values = PER_STREAM.get(stream, {}).get(method)
     return None if values is None else dict(zip(METRICS, values, strict=True))
+
+
+def mean_per(method: str, streams: list[str]) -> float | None:
+    """The paper's PER of ``method`` averaged over ``streams`` (its per-stream tables): its
+    figure on exactly the streams a row of ours covers. ``None`` where a stream lacks it."""
+    rows = [paper_row(stream, method) for stream in streams]
+    if not rows or any(row is None for row in rows):
+        return None
+    return sum(row["PER"][0] for row in rows) / len(rows)
