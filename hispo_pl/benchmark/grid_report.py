@@ -149,8 +149,7 @@ def aggregate_markdown(grid: Grid, rows: Sequence[AggregateRow]) -> str:
             f"| {row.method} | {len(row.streams)} of {n_streams} | {means} | "
             f"{point:.1f} [{low:.1f}, {high:.1f}] | "
             + " | ".join(
-                _num(v)
-                for v in (paper.mean_per(row.method, row.streams), *(theirs or (None,) * 3))
+                _num(v) for v in (paper.mean_per(row.method, row.streams), *(theirs or (None,) * 3))
             )
             + " |"
         )
