@@ -15,9 +15,12 @@ from helpers import BENCH_TINY, BENCH_TINY_OVERRIDES
 from hispo_pl.benchmark import grid as gr
 from hispo_pl.benchmark import grid_report as gp
 from hispo_pl.benchmark.launch import execute_run
+from hispo_pl.benchmark.records import RunRecord
 from hispo_pl.benchmark.report import EMBED_BEGIN, embed_reports
+from hispo_pl.benchmark.tables import run_minutes
 from hispo_pl.cli import main as cli_main
 from hispo_pl.errors import ConfigError
+from hispo_pl.rundir import RunDir
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -318,3 +321,24 @@ def test_summary_bolds_the_best_and_counts_seeds_other_than_three(tmp_path):
     assert "| PointMaze-1 | **99.4 ± 0.1 / 3.37** | 98.8 ± 0.4 / 4.00 | – |" in text
     assert "| PointMaze-2 | – | **99.0 / 4.00 (1 seed)** | – |" in text
     assert text.rstrip().splitlines()[-3].startswith("| VideoGame-2 | – |")
+
+
+def test_cost_counts_a_seed_copied_from_its_sweep_once(tmp_path):
+    src = ROOT / "docs/results/pointmaze-1"
+    root = tmp_path / "results"
+    shutil.copytree(src / "l2", root / "pointmaze-1/l2")
+    for value in ("0.01", "0.1", "1", "10", "100"):
+        name = f"sweeps/l2-lambda{value}"
+        shutil.copytree(src / name, root / "pointmaze-1" / name)
+    seed0 = json.loads((root / "pointmaze-1/l2/seed0/run.json").read_text())
+    assert seed0["derived_from"] == "pointmaze-1/l2-lambda0.01/seed0"  # the sweep's own run
+    grid = gr.grid_from_dict(
+        {**GRID, "streams": ["pointmaze-1"], "parts": {}, "methods": ["l2"], "seeds": 3}, "g"
+    )
+    runs = [root / "pointmaze-1/l2/seed1", root / "pointmaze-1/l2/seed2"]
+    runs += sorted((root / "pointmaze-1/sweeps").glob("*/seed0"))
+    minutes = sum(run_minutes(RunRecord("l2", 0, RunDir(r).stream_results())) for r in runs)
+    (line,) = [
+        row for row in gp.cost_markdown(grid, gp.Committed(root)).splitlines() if "| l2 |" in row
+    ]
+    assert line.startswith(f"| l2 | 7 | {minutes / 60:.1f} | {minutes / 7:.1f} |")

@@ -309,13 +309,23 @@ def sweeps_markdown(grid: Grid, root: Path) -> str:
     return "\n".join(lines) + legend
 
 
+def _a_sweep_run(record: RunRecord, root: Path) -> bool:
+    """A seed copied from its sweep (``run.json`` names the sweep run it is): its time is
+    counted once, with the sweep's runs."""
+    source = record.meta.get("derived_from")
+    if not source:
+        return False
+    stream, label, seed = Path(source).parts
+    return (root / stream / SWEEPS_DIR / label / seed).is_dir()
+
+
 def cost_markdown(grid: Grid, committed: Committed) -> str:
     """What the committed runs of the grid cost: wall hours per method (sweeps included) and
     the share of training, in-fit evaluation and the subspace search."""
     per_method: dict[str, list[RunRecord]] = {}
     for stream in grid.streams:
         for record in committed.records(stream):
-            if record.method in grid.methods:
+            if record.method in grid.methods and not _a_sweep_run(record, committed.root):
                 per_method.setdefault(record.method, []).append(record)
         for seed_dir in sorted((committed.root / stream / SWEEPS_DIR).glob("*/seed*")):
             run = RunDir(seed_dir)
@@ -351,7 +361,8 @@ def cost_markdown(grid: Grid, committed: Committed) -> str:
     lines.append(f"| all | {total_runs} | {total_minutes / 60:.1f} | | | | |")
     legend = (
         "\nWall time of the committed runs (the sum of their tasks' wall times: one torch "
-        "thread each, two runs at a time on 2 CPU cores), sweeps included; the shares split "
+        "thread each, two runs at a time on 2 CPU cores), sweeps included and a seed copied "
+        "from its sweep counted once; the shares split "
         "each task's time between gradient steps, the rollout evaluation after each task and "
         "the subspace search before its decision.\n"
     )
