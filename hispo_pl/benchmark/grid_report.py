@@ -312,10 +312,10 @@ def sweeps_markdown(grid: Grid, root: Path) -> str:
 def _a_sweep_run(record: RunRecord, root: Path) -> bool:
     """A seed copied from its sweep (``run.json`` names the sweep run it is): its time is
     counted once, with the sweep's runs."""
-    source = record.meta.get("derived_from")
-    if not source:
+    parts = Path(record.meta.get("derived_from") or "").parts
+    if len(parts) < 3:  # not derived, or not from a grid's cell
         return False
-    stream, label, seed = Path(source).parts
+    stream, label, seed = parts[-3:]
     return (root / stream / SWEEPS_DIR / label / seed).is_dir()
 
 
