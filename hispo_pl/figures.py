@@ -16,9 +16,19 @@ from matplotlib.ticker import ScalarFormatter
 from .metrics import METRICS
 from .rundir import task_label
 
-# Twelve distinct colours (matplotlib's ten, then black and navy): a method's marker and
-# colour together never repeat in a figure of the paper's twelve methods.
+# Twelve markers and twelve distinct colours (matplotlib's ten, then black and navy): no two
+# of the paper's twelve methods are drawn alike in a figure.
+METHOD_MARKERS = "osD^vP*Xh<>p"
 METHOD_COLORS = tuple(f"C{i}" for i in range(10)) + ("black", "navy")
+
+
+def method_style(i: int) -> dict[str, str]:
+    """The marker (``fmt``) and colour of the ``i``-th method of a figure."""
+    return {
+        "fmt": METHOD_MARKERS[i % len(METHOD_MARKERS)],
+        "color": METHOD_COLORS[i % len(METHOD_COLORS)],
+    }
+
 
 TRIANGLE = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, np.sqrt(3) / 2]])
 
@@ -223,22 +233,19 @@ def perf_vs_memory_figure(rows: Sequence, stream: str = "") -> Figure:
     rows = [r for r in rows if "MEM" in r.metrics]
     fig = Figure(figsize=(6.8, 4.5), layout="constrained")
     ax = fig.add_subplot()
-    markers, colors = "osD^vP*Xh<>p", []
     for i, row in enumerate(rows):
         (x, xs), (y, ys) = row.metrics["MEM"], row.metrics["PER"]
         several = len(row.seeds) > 1
-        drawn = ax.errorbar(
+        ax.errorbar(
             x,
             100 * y,
             xerr=xs if several else None,
             yerr=100 * ys if several else None,
-            fmt=markers[i % len(markers)],
-            color=METHOD_COLORS[i % len(METHOD_COLORS)],
+            **method_style(i),
             capsize=3,
             label=f"{row.method} ({len(row.seeds)} seed{'s' if several else ''}"
             f"{'' if several else ', no interval'})",
         )
-        colors.append(drawn.lines[0].get_color())
     xs_all = [r.metrics["MEM"][0] for r in rows] or [1.0]
     ax.set_xlim(*span_limits(min(xs_all), max(xs_all), min_span=1.0))
     top = max([100 * sum(r.metrics["PER"]) for r in rows] + [100.0])
@@ -253,6 +260,7 @@ def perf_vs_memory_figure(rows: Sequence, stream: str = "") -> Figure:
     if rows:
         ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     centres = [(r.metrics["MEM"][0], 100 * r.metrics["PER"][0]) for r in rows]
+    colors = [method_style(i)["color"] for i in range(len(rows))]
     label_markers(fig, ax, [r.method for r in rows], centres, colors)
     return fig
 
@@ -296,7 +304,6 @@ def iqm_vs_memory_figure(rows: Sequence, title: str) -> Figure:
     ``method``, ``streams``, ``means`` and ``iqm``: point, low, high)."""
     fig = Figure(figsize=(6.4, 4.6), layout="constrained")
     ax = fig.add_subplot()
-    markers = "osD^vP*Xh<>p"
     drawn = [r for r in rows if "MEM" in r.means]
     for i, row in enumerate(drawn):
         point, low, high = row.iqm
@@ -304,8 +311,7 @@ def iqm_vs_memory_figure(rows: Sequence, title: str) -> Figure:
             row.means["MEM"],
             point,
             yerr=[[point - low], [high - point]],
-            fmt=markers[i % len(markers)],
-            color=METHOD_COLORS[i % len(METHOD_COLORS)],
+            **method_style(i),
             capsize=3,
             label=f"{row.method} ({len(row.streams)} stream{'' if len(row.streams) == 1 else 's'})",
         )
@@ -322,6 +328,6 @@ def iqm_vs_memory_figure(rows: Sequence, title: str) -> Figure:
     if ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=7, loc="lower right")
     centres = [(r.means["MEM"], r.iqm[0]) for r in drawn]
-    colors = [METHOD_COLORS[i % len(METHOD_COLORS)] for i in range(len(drawn))]
+    colors = [method_style(i)["color"] for i in range(len(drawn))]
     label_markers(fig, ax, [r.method for r in drawn], centres, colors, fontsize=7, leaders=True)
     return fig
