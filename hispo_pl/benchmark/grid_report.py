@@ -309,7 +309,7 @@ def sweeps_markdown(grid: Grid, root: Path) -> str:
     return "\n".join(lines) + legend
 
 
-def _a_sweep_run(record: RunRecord, root: Path) -> bool:
+def _copied_from_sweep(record: RunRecord, root: Path) -> bool:
     """A seed copied from its sweep (``run.json`` names the sweep run it is): its time is
     counted once, with the sweep's runs."""
     parts = Path(record.meta.get("derived_from") or "").parts
@@ -325,7 +325,7 @@ def cost_markdown(grid: Grid, committed: Committed) -> str:
     per_method: dict[str, list[RunRecord]] = {}
     for stream in grid.streams:
         for record in committed.records(stream):
-            if record.method in grid.methods and not _a_sweep_run(record, committed.root):
+            if record.method in grid.methods and not _copied_from_sweep(record, committed.root):
                 per_method.setdefault(record.method, []).append(record)
         for seed_dir in sorted((committed.root / stream / SWEEPS_DIR).glob("*/seed*")):
             run = RunDir(seed_dir)
