@@ -112,6 +112,7 @@ class RolloutEvaluation(KeyedState):
 
     def _record(self, pl_module: L.LightningModule, evaluation: dict[str, float]) -> None:
         pl_module.task_record.evaluation = evaluation
+        pl_module.task_record.curve.append(evaluation)
         pl_module.task_record.episodes = self.episodes
 
     @override

@@ -184,7 +184,8 @@ def refuse_unseen_variants(model, datamodule: TaskDataModule) -> None:
 
 def write_task_result(log_dir: str, model, task, seconds: float, used=None) -> None:
     """``result.json`` beside a single-task run's logs: its final evaluation (the module's
-    task record) and the dataset it trained on (``used``, a
+    task record), every evaluation before it (``curve``: step, success, episode length, with
+    ``RolloutEvaluation(eval_every=N)``) and the dataset it trained on (``used``, a
     :class:`~hispo_pl.data.datasets.DatasetUse`), for tables
     (``benchmarks/single_task_table.py``) without parsing TensorBoard files."""
     record = model.task_record
@@ -195,6 +196,7 @@ def write_task_result(log_dir: str, model, task, seconds: float, used=None) -> N
         "episodes": record.episodes,
         "seconds": round(seconds, 1),
         **{k: float(v) for k, v in record.evaluation.items()},
+        "curve": [{k: float(v) for k, v in point.items()} for point in record.curve],
     }
     RunDir(log_dir).write_result(result)
 

@@ -27,6 +27,8 @@ class TaskRecord:
         evaluation: the latest rollout evaluation of the current task (``success``,
             ``episode_length``, ``flip_rate``, ``step``), over ``episodes`` episodes.
         episodes: episodes of that evaluation.
+        curve: every evaluation of the current task in order (periodic ones, then the one at
+            the task's end), each as ``evaluation``: a single-task run's learning curve.
         success_row: at a stream task's end, the success on every task of the stream (a row
             of R, read by the loop).
         rollouts: at a stream task's end, that task's scored rollouts with their paths (a
@@ -39,6 +41,7 @@ class TaskRecord:
     convergence_window: float | None = None
     evaluation: dict[str, float] | None = None
     episodes: int | None = None
+    curve: list[dict[str, float]] = field(default_factory=list)
     success_row: list[float] | None = None
     rollouts: Any = None
     seconds: dict[str, float] = field(default_factory=dict)

@@ -37,13 +37,16 @@ def test_settings_are_named_overrides_of_one_config():
 def test_a_run_is_the_products_fit_and_its_result_is_read(tiny_umaze, tmp_path):
     (setting,) = study.parse_settings([CONFIG], ["segment=--data.goal_horizon segment"])
     task = "pointmaze-umaze-N[3]"
-    argv = study.fit_argv(setting, task, 1, tmp_path, ["--trainer.max_steps", "3"])
+    argv = study.fit_argv(setting, task, 1, tmp_path, ["--trainer.max_steps", "5"])
     assert argv[:4] == ["-m", "hispo_pl.cli", "fit", "--config"]
-    extra = ["--eval_episodes", "2", "--trainer.enable_progress_bar", "false"]
+    extra = ["--eval_episodes", "2", "--eval_every", "2", "--trainer.enable_progress_bar", "false"]
     assert cli_main(argv[2:] + extra) == 0  # the same command, in process
     run = study.run_dir(tmp_path, setting, task, 1)
     result = run.read_result()
-    assert result["task"] == task and result["step"] == 3
+    assert result["task"] == task and result["step"] == 5
+    # the learning curve: every periodic evaluation, then the final one it ends on
+    assert [point["step"] for point in result["curve"]] == [2, 4, 5]
+    assert result["curve"][-1]["success"] == result["success"]
     config = run.config_file.read_text()
     assert "goal_horizon: segment" in config and "seed_everything: 1" in config
     assert study.collect_results(tmp_path, [setting], [task]) == {("segment", task): [result]}
