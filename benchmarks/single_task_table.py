@@ -38,6 +38,7 @@ from hispo_pl.benchmark import (
     PlannedRun,
     finished_run_dirs,
     pending_runs,
+    provenance,
     record_status,
     run_env,
     run_local,
@@ -215,7 +216,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     if not args.report_only:
         runs = plan_runs(settings, tasks, seeds, args.out, extra)
-        todo = pending_runs(runs, stream=None)
+        todo = pending_runs(runs, stream=None, made_on=provenance())
         report = progress_lines(len(runs), len(runs) - len(todo))
         run_local(todo, args.workers, report, run_env(1))
     results = collect_results(args.out, settings, tasks)

@@ -37,6 +37,7 @@ from .plan import (
     parse_seeds,
     pending_runs,
     plan_runs,
+    provenance,
     select_methods,
     stream_config_path,
 )
@@ -101,6 +102,7 @@ __all__ = [
     "parse_seeds",
     "pending_runs",
     "plan_runs",
+    "provenance",
     "plot_perf_vs_memory",
     "prepare_datasets",
     "record_status",
