@@ -12,6 +12,7 @@ import numpy as np
 from ..errors import RunDirError
 from ..io import atomic_write_text
 from ..rundir import RunDir
+from .curves import CURVES_FILE
 from .grid import GRID_FILE
 from .plan import PLAN_FILE, RUNS_DIR
 from .records import MethodRow, RunRecord, aggregate, load_records
@@ -159,7 +160,8 @@ def embed_reports(doc: Path, root: Path = Path(".")) -> str:
     ``<!-- report: DIR/NAME -->`` and closed by ``<!-- end report -->`` gets the file ``NAME``
     that :func:`write_report` builds from the runs under ``DIR`` (relative to ``root``), without
     its title line; a grid's report (its folder holds ``grid.json``) is rebuilt from the
-    grid's committed runs. Keeps a documentation page equal to what its committed run files
+    grid's committed runs, a learning-curve study's (its folder holds ``curves.json``) from its
+    runs' curves. Keeps a documentation page equal to what its committed run files
     give."""
     lines, out, i = Path(doc).read_text().splitlines(), [], 0
     while i < len(lines):
@@ -171,6 +173,8 @@ def embed_reports(doc: Path, root: Path = Path(".")) -> str:
         target = Path(root) / line[len(EMBED_BEGIN) :].removesuffix("-->").strip()
         if (target.parent / GRID_FILE).exists():
             text = _grid_report_text(target).splitlines()
+        elif (target.parent / CURVES_FILE).exists():
+            text = _curves_report_text(target).splitlines()
         else:
             text = _stream_report_text(target).splitlines()
         out += [x for x in text[1:] if x or out[-1]]  # without the title, no doubled blank
@@ -179,6 +183,16 @@ def embed_reports(doc: Path, root: Path = Path(".")) -> str:
         if i == len(lines):
             raise ValueError(f"{doc}: {line} has no closing {EMBED_END}")
     return "\n".join(out) + "\n"
+
+
+def _curves_report_text(target: Path) -> str:
+    """A learning-curve study's ``curves.md`` rebuilt from its committed runs."""
+    from .curves import CurveStudy, curves_markdown, load_curves
+
+    if target.name != "curves.md":
+        raise ValueError(f"{target}: a learning-curve study's report is curves.md")
+    study = CurveStudy.read(target.parent)
+    return curves_markdown(study, load_curves(target.parent, study))
 
 
 def _grid_report_text(target: Path) -> str:
