@@ -137,25 +137,23 @@ def keep_last_checkpoint(checkpoint: dict) -> dict:
     return out
 
 
-def keep_last_config_text(text: str, run_dir: Path) -> str:
-    """A keep-all run's ``config.yaml`` (or ``task_XX.config.yaml``) as the keep-last run in
-    ``run_dir`` writes it: ``keep: last`` and the logger's directory pointing at ``run_dir``
-    (``save_dir/name/version``), written in the same YAML style (leading comments kept).
+def rewritten_config_text(text: str, run_dir: Path, change: Callable[[dict], None]) -> str:
+    """A run's ``config.yaml`` (or ``task_XX.config.yaml``) as another run in ``run_dir``
+    writes it: ``change`` applied to the parsed configuration and the logger's directory
+    pointing at ``run_dir`` (``save_dir/name/version``), in the same YAML style (leading
+    comments kept).
 
     Raises:
-        RunDirError: not a NetworkPerTask run that keeps all, or YAML this cannot rewrite
-            without changing more than those keys."""
+        RunDirError: YAML this cannot rewrite without changing more than those keys."""
     import yaml
 
     lines = text.splitlines(keepends=True)
     header = "".join(lines[: next((i for i, ln in enumerate(lines) if ln[:1] != "#"), 0)])
     body = text[len(header) :]
     config = yaml.safe_load(body)
-    if not isinstance(config, dict) or _keep(config) != "all":
-        raise RunDirError(f"{run_dir}: derives only from a {NETWORK_PER_TASK} run with keep: all")
-    if yaml.safe_dump(config, sort_keys=False) != body:
+    if not isinstance(config, dict) or yaml.safe_dump(config, sort_keys=False) != body:
         raise RunDirError(f"{run_dir}: its source's configuration is not plain YAML to rewrite")
-    config = with_keep(config, "last")
+    change(config)
     logger = (config.get("trainer") or {}).get("logger")
     init = logger.get("init_args") if isinstance(logger, dict) else None
     if isinstance(init, dict):
@@ -167,6 +165,25 @@ def keep_last_config_text(text: str, run_dir: Path) -> str:
             if key in init:
                 init[key] = value
     return header + yaml.safe_dump(config, sort_keys=False)
+
+
+def keep_last_config_text(text: str, run_dir: Path) -> str:
+    """A keep-all run's ``config.yaml`` (or ``task_XX.config.yaml``) as the keep-last run in
+    ``run_dir`` writes it: ``keep: last`` and the logger's directory
+    (:func:`rewritten_config_text`).
+
+    Raises:
+        RunDirError: not a NetworkPerTask run that keeps all, or YAML this cannot rewrite
+            without changing more than those keys."""
+    import yaml
+
+    if _keep(yaml.safe_load(text) or {}) != "all":
+        raise RunDirError(f"{run_dir}: derives only from a {NETWORK_PER_TASK} run with keep: all")
+
+    def change(config: dict) -> None:
+        config["model"]["init_args"]["keep"] = "last"
+
+    return rewritten_config_text(text, run_dir, change)
 
 
 def _rollout_evaluation(config: dict):

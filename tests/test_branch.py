@@ -1,0 +1,112 @@
+"""The ε tree: a run at another pruning tolerance shares the tasks before its first differing
+decision with a finished run, so it is branched from that run's files and resumed instead of
+trained from the start. The test that licenses it: a branched run equals a real run of that ε
+(results, decisions, progress, checkpoints), both where it trains on after the branch and where
+it agrees on every task and is copied whole."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+from helpers import fit_tiny_stream
+
+from hispo_pl.benchmark import branch
+from hispo_pl.errors import RunDirError
+from hispo_pl.results import LossDecision
+from hispo_pl.rundir import RunDir
+
+STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]", "pointmaze-umaze-IA[3]"]
+BUDGET = ("--trainer.max_steps", "20")
+ROOT_EPS = 0.1
+TIMES = ("wall_time_s", "phase_time_s")
+
+
+def _eps_args(eps: float) -> tuple[str, ...]:
+    return ("--eps_high", f"{eps:g}", "--eps_low", f"{eps:g}", *BUDGET)
+
+
+def _both(eps: float) -> dict[str, float]:
+    return {"high": eps, "low": eps}
+
+
+@pytest.fixture(scope="module")
+def root_run(tiny_umaze, tmp_path_factory) -> Path:
+    """HiSPO at ε = 0.1 on three tiny tasks: two task-end decisions per subspace."""
+    root = tmp_path_factory.mktemp("tree")
+    return fit_tiny_stream("hispo", root / "root", STREAM, *_eps_args(ROOT_EPS))[1]
+
+
+def _tolerance_sharing(run: Path, tasks: int) -> float:
+    """A tolerance of the paper's kind whose run shares exactly ``tasks`` tasks with ``run``."""
+    decisions = RunDir(run).decisions()
+    for eps in (0.0, 0.01, 0.05, 0.25, 0.5, 1.0, 2.0, 20.0):
+        if eps != ROOT_EPS and branch.shared_tasks(decisions, _both(eps), 3) == tasks:
+            return eps
+    raise AssertionError(f"no tolerance shares {tasks} tasks with {run}: {decisions}")
+
+
+def _equal(a, b) -> bool:
+    if torch.is_tensor(a):
+        return torch.is_tensor(b) and a.dtype == b.dtype and torch.equal(a, b)
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(_equal(a[k], b[k]) for k in a)
+    if isinstance(a, list | tuple):
+        return len(a) == len(b) and all(_equal(x, y) for x, y in zip(a, b, strict=True))
+    return a == b
+
+
+def _without_times(record: dict) -> dict:
+    return {k: v for k, v in record.items() if k not in TIMES}
+
+
+@pytest.mark.parametrize("shared", [2, 3], ids=["trains-on", "copied-whole"])
+def test_a_branched_run_equals_a_real_run_of_its_tolerance(root_run, tmp_path, shared):
+    eps = _tolerance_sharing(root_run, shared)
+    real = RunDir(fit_tiny_stream("hispo", tmp_path / "real", STREAM, *_eps_args(eps))[1])
+    target = RunDir(tmp_path / "branched" / "pointmaze-1" / "seed0")
+    branch.branch_run(root_run, target.path, shared, _both(eps), {"method": "hispo"})
+    assert target.read_run_record()["branched_tasks"] == shared
+    results = fit_tiny_stream("hispo", tmp_path / "branched", STREAM, *_eps_args(eps))[0]
+    assert _without_times(results) == _without_times(real.read_results())
+    assert [d.to_json() for d in target.decisions()] == [d.to_json() for d in real.decisions()]
+    assert _without_times(target.read_progress()) == _without_times(real.read_progress())
+    for task in range(len(STREAM)):
+        a = torch.load(target.checkpoint(task), weights_only=True)
+        assert _equal(a, torch.load(real.checkpoint(task), weights_only=True)), task
+    # the copied tasks cost nothing; a task trained after the branch did
+    training = [p["training"] for p in target.read_progress()["phase_time_s"]]
+    assert training[:shared] == [0.0] * shared and all(t > 0 for t in training[shared:])
+    if shared < len(STREAM):  # the first differing decision is the branch's own
+        root = [d.decision for d in RunDir(root_run).decisions() if d.task == shared]
+        assert root != [d.decision for d in target.decisions() if d.task == shared]
+
+
+def test_shared_tasks_end_at_the_first_decision_the_tolerance_changes():
+    d = [
+        LossDecision(task=0, subspace="low", decision="first", eps=0.1),
+        LossDecision(task=1, subspace="low", decision="keep", eps=0.1, l_prev=1.2, l_curr=1.0),
+        LossDecision(task=2, subspace="high", decision="prune", eps=0.1, l_prev=1.05, l_curr=1.0),
+    ]
+    assert branch.shared_tasks(d, _both(0.1), 4) == 4
+    assert branch.shared_tasks(d, _both(0.01), 4) == 2  # task 2's high anchor is kept at 0.01
+    assert branch.shared_tasks(d, _both(0.25), 4) == 1  # task 1's low anchor is pruned at 0.25
+    assert branch.shared_tasks(d, {"high": 0.1}, 4) == 4  # low's tolerance as recorded
+    found = branch.best_source({"a": (d, 3), "b": (d[:2], 2)}, _both(0.01))
+    assert found == ("a", 2)
+    assert branch.best_source({"a": (d, 3)}, {"low": 0.25, "high": 0.25}) == ("a", 1)
+    assert branch.tolerances(["--eps_high", "0.05", "--eps_low", "0.05", "--x", "1"]) == (
+        _both(0.05)
+    )
+
+
+def test_a_branch_refuses_tasks_that_would_decide_otherwise_or_a_used_directory(root_run, tmp_path):
+    eps = _tolerance_sharing(root_run, 2)
+    with pytest.raises(RunDirError, match="decide otherwise"):
+        branch.branch_run(root_run, tmp_path / "a", 3, _both(eps), {})
+    with pytest.raises(RunDirError, match="fewer than 4 finished tasks"):
+        branch.branch_run(root_run, tmp_path / "b", 4, _both(ROOT_EPS), {})
+    branch.branch_run(root_run, tmp_path / "c", 2, _both(eps), {})
+    with pytest.raises(RunDirError, match="already holds a run"):
+        branch.branch_run(root_run, tmp_path / "c", 2, _both(eps), {})
