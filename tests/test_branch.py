@@ -6,17 +6,23 @@ it agrees on every task and is copied whole."""
 
 from __future__ import annotations
 
+import json
+import shutil
 from pathlib import Path
 
 import pytest
 import torch
-from helpers import fit_tiny_stream
+import yaml
+from helpers import BENCH_TINY_OVERRIDES, fit_tiny_stream
 
 from hispo_pl.benchmark import branch
+from hispo_pl.benchmark.configs import saved_setting
+from hispo_pl.cli import main as cli_main
 from hispo_pl.errors import RunDirError
 from hispo_pl.results import LossDecision
 from hispo_pl.rundir import RunDir
 
+ROOT = Path(__file__).resolve().parents[1]
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]", "pointmaze-umaze-IA[3]"]
 BUDGET = ("--trainer.max_steps", "20")
 ROOT_EPS = 0.1
@@ -110,3 +116,61 @@ def test_a_branch_refuses_tasks_that_would_decide_otherwise_or_a_used_directory(
     branch.branch_run(root_run, tmp_path / "c", 2, _both(eps), {})
     with pytest.raises(RunDirError, match="already holds a run"):
         branch.branch_run(root_run, tmp_path / "c", 2, _both(eps), {})
+
+
+# --- the grid's tolerance tree, end to end ----------------------------------------------------
+
+
+def _tree_grid_configs(tmp_path: Path, values: list[float]) -> Path:
+    configs = tmp_path / "configs"
+    for sub in ("methods", "streams", "grids"):
+        (configs / sub).mkdir(parents=True)
+    shutil.copy(ROOT / "configs/streams/pointmaze-1.yaml", configs / "streams")
+    shutil.copy(ROOT / "configs/methods/hispo.yaml", configs / "methods")
+    grid = {
+        "streams": ["pointmaze-1"],
+        "methods": ["hispo"],
+        "seeds": [0],
+        "steps_per_task": 20,
+        "extra": [*BENCH_TINY_OVERRIDES[:1], json.dumps(STREAM), *BENCH_TINY_OVERRIDES[2:]],
+        "sweeps": {
+            "hispo": {"key": ["eps_high", "eps_low"], "name": "eps", "values": values,
+                      "branch": True}
+        },
+    }  # fmt: skip
+    (configs / "grids/tree.yaml").write_text(yaml.safe_dump(grid))
+    return configs
+
+
+def test_the_grid_trains_a_tolerance_sweep_as_a_tree(tiny_umaze, tmp_path, capsys):
+    pytest.importorskip("rliable")
+    values = [0.1, 0.0, 20.0]  # 20: prunes every anchor, so it parts at the first decision
+    configs = _tree_grid_configs(tmp_path, values)
+    work, root = tmp_path / "work", tmp_path / "results"
+    args = ["benchmark", "--grid", "tree", "--config-dir", str(configs), "--out", str(work)]
+    args += ["--export", str(root), "--workers", "1"]
+    assert cli_main([*args, "--dry-run"]) == 0
+    printed = capsys.readouterr().out
+    assert "pointmaze-1/hispo-eps0/seed0 waits for the tree's first value hispo-eps0.1" in printed
+    assert cli_main(args) == 0
+    printed = capsys.readouterr().out
+    sweeps = root / "pointmaze-1" / "sweeps"
+    first = RunDir(sweeps / "hispo-eps0.1" / "seed0")
+    assert "branched_tasks" not in first.read_run_record()
+    decisions = first.decisions()
+    for value in values[1:]:
+        run = RunDir(sweeps / f"hispo-eps{value:g}" / "seed0")
+        record = run.read_run_record()
+        shared = branch.shared_tasks(decisions, _both(value), len(STREAM))
+        assert record["branched_from"] == "pointmaze-1/hispo-eps0.1/seed0"
+        assert record["branched_tasks"] == shared >= 1
+        assert f"hispo-eps{value:g}/seed0: its first {shared} task(s) branched" in printed
+        assert [d.eps for d in run.decisions() if d.l_prev is not None] == [value] * len(
+            [d for d in run.decisions() if d.l_prev is not None]
+        )
+        assert saved_setting(run.config_file, "eps_low") == value
+        assert run.stream_results().R[:shared] == first.stream_results().R[:shared]
+    assert branch.shared_tasks(decisions, _both(20.0), len(STREAM)) == 1
+    # the chosen value's seed 0 is its sweep run; nothing is left to run
+    assert cli_main([*args, "--dry-run"]) == 0
+    assert "pointmaze-1: 4 done, 0 to run" in capsys.readouterr().out

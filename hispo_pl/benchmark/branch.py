@@ -147,7 +147,8 @@ def branch_run(
     """Start the run at ``eps`` in ``target`` with the first ``tasks`` tasks of the run in
     ``source``: their checkpoints, task configs and search files, ``progress.json`` (rows,
     datasets and fingerprint; no training time, as none was spent), the decisions with ``eps``
-    written in, and ``run.json`` (``record`` with ``branched_from`` and ``branched_tasks``).
+    written in, and ``run.json`` (``record`` with ``branched_tasks``, and ``branched_from``: the
+    source's directory unless ``record`` names it otherwise).
     The run's own fit then resumes after them.
 
     Raises:
@@ -191,5 +192,5 @@ def branch_run(
     }
     if "fingerprint" in progress:
         branched["fingerprint"] = branched_fingerprint(progress["fingerprint"], eps)
-    out.write_run_record({**record, "branched_from": str(src), "branched_tasks": tasks})
+    out.write_run_record({"branched_from": str(src), **record, "branched_tasks": tasks})
     out.write_progress(branched)

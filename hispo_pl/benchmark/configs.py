@@ -41,6 +41,28 @@ def configured_value(configs: Sequence[Path], overrides: Sequence[str], key: str
     return value
 
 
+def saved_setting(config_file: Path, key: str):
+    """The value a finished run's saved ``config.yaml`` holds for ``key``: a dotted key, or a
+    method knob (``eps_low``), which the run wrote into the callbacks that take it (the first
+    of them that sets it); None when unset."""
+    import yaml
+
+    from ..run_checks import METHOD_KNOBS
+
+    if key not in METHOD_KNOBS:
+        return configured_value([config_file], [], key)
+    targets = METHOD_KNOBS[key][1]
+    config = yaml.safe_load(Path(config_file).read_text()) or {}
+    for callback in (config.get("trainer") or {}).get("callbacks") or []:
+        if not isinstance(callback, dict):
+            continue
+        param = targets.get(str(callback.get("class_path", "")).rsplit(".", 1)[-1])
+        value = (callback.get("init_args") or {}).get(param) if param else None
+        if value is not None:
+            return value
+    return None
+
+
 def configured_max_steps(configs: Sequence[Path], overrides: Sequence[str] = ()) -> int | None:
     """Gradient steps per task that ``fit`` will use (``trainer.max_steps``)."""
     steps = configured_value(configs, overrides, "trainer.max_steps")

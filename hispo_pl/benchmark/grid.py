@@ -20,24 +20,36 @@ from pathlib import Path
 
 from ..errors import ConfigError, RunDirError
 from ..rundir import RunDir
-from .configs import configured_value
+from .branch import EPS_FLAGS
+from .configs import saved_setting
 from .derive import sibling_derivations
 from .plan import PlannedRun, plan_run, planned_tasks, stream_config_path
 
 GRIDS_DIR = "grids"
 GRID_FILE = "grid.json"  # the grid's definition, beside its reports
 SWEEPS_DIR = "sweeps"  # <root>/<stream>/sweeps/<label>/seed<S>: kept out of the stream's table
+BRANCHING_KEYS = tuple(flag.removeprefix("--") for flag in EPS_FLAGS)  # what a tree may sweep
 
 
 @dataclass(frozen=True)
 class Sweep:
-    """Values of one setting of a method, each run on ``seed``; the best PER is kept."""
+    """Values of one setting of a method, each run on ``seed``; the best PER is kept.
+
+    ``key`` is a dotted fit flag (``model.init_args.penalty_lambda``) or several set to the
+    same value (``eps_high,eps_low``: one ε for both subspaces). A ``branch`` sweep is of the
+    pruning tolerances: its first value trains, and every other value's run is branched from
+    a finished one up to their first differing decision (:mod:`.branch`)."""
 
     method: str
-    key: str  # a dotted fit flag, e.g. model.init_args.penalty_lambda
+    key: str
     values: tuple[float, ...]
     name: str = "value"  # in run labels: l2-lambda0.1
     seed: int = 0
+    branch: bool = False
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        return tuple(k.strip() for k in self.key.split(","))
 
     def label(self, value: float) -> str:
         return f"{self.method}-{self.name}{value:g}"
@@ -64,7 +76,13 @@ class Grid:
             "seeds": list(self.seeds),
             "parts": {k: list(v) for k, v in self.parts.items()},
             "sweeps": {
-                m: {"key": s.key, "values": list(s.values), "name": s.name, "seed": s.seed}
+                m: {
+                    "key": s.key,
+                    "values": list(s.values),
+                    "name": s.name,
+                    "seed": s.seed,
+                    **({"branch": True} if s.branch else {}),
+                }
                 for m, s in self.sweeps.items()
             },
             "steps_per_task": self.steps_per_task,
@@ -108,13 +126,20 @@ def grid_from_dict(raw: dict, name: str, where: str = "grid") -> Grid:
             raise ConfigError(f"{where}: sweep of {method}, which is not among the methods")
         if not isinstance(spec, dict) or "key" not in spec or not spec.get("values"):
             raise ConfigError(f"{where}: sweep of {method} needs `key` and `values`")
+        key = spec["key"]
         sweeps[method] = Sweep(
             method,
-            str(spec["key"]),
+            ",".join(map(str, key)) if isinstance(key, list) else str(key),
             tuple(float(v) for v in spec["values"]),
             str(spec.get("name", "value")),
             int(spec.get("seed", seeds[0])),
+            bool(spec.get("branch", False)),
         )
+        if sweeps[method].branch and not set(sweeps[method].keys) <= set(BRANCHING_KEYS):
+            raise ConfigError(
+                f"{where}: sweep of {method}: `branch` needs keys among "
+                f"{', '.join(BRANCHING_KEYS)} (only the pruning tolerance leaves training alike)"
+            )
     steps = raw.get("steps_per_task")
     return Grid(
         str(raw.get("name", name)),
@@ -207,17 +232,20 @@ def chosen_value(sweep: Sweep, per: dict[float, float | None]) -> float | None:
     return sweep.values[max(range(len(scores)), key=lambda i: (scores[i], -i))]
 
 
-def _flag(sweep: Sweep, value: float) -> tuple[str, str]:
-    return (f"--{sweep.key}", f"{value:g}")
+def _flag(sweep: Sweep, value: float) -> tuple[str, ...]:
+    return tuple(arg for key in sweep.keys for arg in (f"--{key}", f"{value:g}"))
 
 
 @dataclass
 class GridPlan:
     """What a grid still needs: runs to train, runs to copy from an identical one (target,
     source), keep-last runs to derive from their keep-all sibling's checkpoints (target,
-    source: :mod:`~hispo_pl.benchmark.derive`), and lines for what waits on something else."""
+    source: :mod:`~hispo_pl.benchmark.derive`), runs of a tolerance tree to branch before they
+    train on (target, source, shared tasks: :mod:`~hispo_pl.benchmark.branch`; each is in
+    ``todo`` too), and lines for what waits on something else."""
 
     todo: list[Cell] = field(default_factory=list)
+    branched: list[tuple[Cell, Cell, int]] = field(default_factory=list)
     derived: list[tuple[Cell, Cell]] = field(default_factory=list)
     from_sibling: list[tuple[Cell, Cell]] = field(default_factory=list)
     waiting: list[str] = field(default_factory=list)
@@ -230,11 +258,15 @@ def plan_cells(
     committed_per: Callable[[Cell], float | None],
     sibling: Callable[[Cell], Cell | None] = lambda cell: None,
     derivable: Callable[[Cell], bool] = lambda cell: False,
+    started: Callable[[Cell], bool] = lambda cell: False,
+    branch_source: Callable[[Cell, list[Cell]], tuple[Cell, int] | None] = lambda c, done: None,
 ) -> GridPlan:
     """Every cell of ``streams``, sorted into done (``committed_per`` gives its PER), to run,
     to derive and waiting. Streams outer, then the grid's methods, then seeds. A cell with a
     ``sibling`` to run or a ``derivable`` one done is derived from it
-    (:func:`~hispo_pl.benchmark.derive.sibling_derivations`)."""
+    (:func:`~hispo_pl.benchmark.derive.sibling_derivations`). In a branch sweep, a value not
+    ``started`` is branched from the ``branch_source`` among the done and ``derivable`` values
+    (the one it shares most tasks with), and waits while the first value has not finished."""
     plan = GridPlan()
     for stream in streams:
         for method in grid.methods:
@@ -248,8 +280,12 @@ def plan_cells(
                 v: Cell(stream, sweep.label(v), method, sweep.seed, _flag(sweep, v), True)
                 for v in sweep.values
             }
-            for cell in sweep_cells.values():
-                (plan.done if committed_per(cell) is not None else plan.todo).append(cell)
+            if sweep.branch:
+                _plan_tree(plan, list(sweep_cells.values()), committed_per, derivable, started,
+                           branch_source)  # fmt: skip
+            else:
+                for cell in sweep_cells.values():
+                    (plan.done if committed_per(cell) is not None else plan.todo).append(cell)
             best = chosen_value(sweep, {v: committed_per(c) for v, c in sweep_cells.items()})
             if best is None:
                 plan.waiting.append(
@@ -266,6 +302,37 @@ def plan_cells(
                     plan.todo.append(cell)
     plan.todo, plan.from_sibling = sibling_derivations(plan.todo, plan.done, sibling, derivable)
     return plan
+
+
+def _plan_tree(
+    plan: GridPlan,
+    cells: list[Cell],
+    committed_per: Callable[[Cell], float | None],
+    derivable: Callable[[Cell], bool],
+    started: Callable[[Cell], bool],
+    branch_source: Callable[[Cell, list[Cell]], tuple[Cell, int] | None],
+) -> None:
+    """A branch sweep's cells into ``plan``: the first value (the root) and every started run
+    train; another value is branched from the finished run it shares most tasks with, waits
+    for the root while that has not finished, and trains from the start when it shares none
+    with a finished run (or none has its checkpoints left)."""
+    done = [c for c in cells if committed_per(c) is not None]
+    plan.done += done
+    finished = [c for c in done if derivable(c)]
+    for i, cell in enumerate(cells):
+        if cell in done:
+            continue
+        if i == 0 or started(cell):
+            plan.todo.append(cell)
+            continue
+        found = branch_source(cell, finished)
+        if found is not None:
+            plan.branched.append((cell, *found))
+            plan.todo.append(cell)
+        elif cells[0] not in done:
+            plan.waiting.append(f"{cell.name} waits for the tree's first value {cells[0].label}")
+        else:
+            plan.todo.append(cell)
 
 
 def cell_run(
@@ -314,7 +381,7 @@ def committed_reader(grid: Grid, config_dir: Path, root: Path) -> Callable[[Cell
         if steps is not None and steps != budgets[cell.stream]:
             return None
         for key, value in zip(cell.extra[::2], cell.extra[1::2], strict=True):
-            saved = configured_value([run.config_file], [], key.removeprefix("--"))
+            saved = saved_setting(run.config_file, key.removeprefix("--"))
             if saved is None or float(saved) != float(value):
                 return None
         return float(results.metrics["PER"])

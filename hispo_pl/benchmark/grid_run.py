@@ -78,6 +78,10 @@ def run_grid(
     committed_per = committed_reader(grid, config_dir, root)
     sibling = grid_sibling(grid.methods, config_dir)
     derivable = grid_derivable(grid, config_dir, work, root)
+    branch_source = grid_branch_source(grid, config_dir, work)
+
+    def started(cell: Cell) -> bool:
+        return RunDir(cell_run(cell, grid, config_dir, work).run_dir).progress_file.exists()
 
     def estimate(cell: Cell) -> float | None:
         return estimated_minutes(cell, root, grid.streams)
@@ -85,7 +89,10 @@ def run_grid(
     failed = 0
     attempted: set[str] = set()
     while True:
-        plan = plan_cells(grid, streams, committed_per, sibling, derivable)
+        plan = plan_cells(grid, streams, committed_per, sibling, derivable, started, branch_source)
+        for target, source, tasks in plan.branched if not dry_run else ():
+            branch_cell(target, source, tasks, grid, config_dir, work, num_threads)
+            print(f"[grid] {target.name}: its first {tasks} task(s) branched from {source.name}")
         for target, source in plan.derived if not dry_run else ():
             export_cell(source.result_dir(root), target, root, derived_from=source)
             print(f"[grid] {target.name}: the same run as {source.name}, copied")
@@ -95,6 +102,10 @@ def run_grid(
                 print(f"[grid] {target.name}: derived from {source.name}, exported to {out}")
         for line in describe(plan, estimate):
             print(line)
+        for target, source, tasks in plan.branched if dry_run else ():
+            print(
+                f"[grid] {target.name}: would branch its first {tasks} task(s) from {source.name}"
+            )
         todo = [c for c in plan.todo if c.name not in attempted]
         if dry_run:
             for cell in todo:
@@ -192,6 +203,47 @@ def grid_derivable(grid: Grid, config_dir: Path, work: Path, root: Path) -> Call
         return derivable_run(run_dir, cell.result_dir(root))
 
     return derivable
+
+
+def grid_branch_source(
+    grid: Grid, config_dir: Path, work: Path
+) -> Callable[[Cell, list[Cell]], tuple[Cell, int] | None]:
+    """``branch_source(cell, finished)``: the run among ``finished`` (cells whose runs in
+    ``work`` are whole) that ``cell``'s tolerances share most leading tasks with, and how many
+    (:func:`~hispo_pl.benchmark.branch.best_source`); None when none shares a task."""
+    from .branch import best_source, tolerances
+
+    def branch_source(cell: Cell, finished: list[Cell]) -> tuple[Cell, int] | None:
+        candidates, by_name = {}, {}
+        for done in finished:
+            run = RunDir(cell_run(done, grid, config_dir, work).run_dir)
+            candidates[done.name] = (run.decisions(), len(run.stream_results().stream))
+            by_name[done.name] = done
+        found = best_source(candidates, tolerances(cell.extra))
+        return None if found is None else (by_name[found[0]], found[1])
+
+    return branch_source
+
+
+def branch_cell(
+    target: Cell,
+    source: Cell,
+    tasks: int,
+    grid: Grid,
+    config_dir: Path,
+    work: Path,
+    num_threads: int = 1,
+) -> None:
+    """Start ``target``'s run in ``work`` with ``source``'s first ``tasks`` tasks
+    (:func:`~hispo_pl.benchmark.branch.branch_run`); the grid's runner then resumes it."""
+    from .branch import branch_run, tolerances
+
+    run, made = (
+        cell_run(target, grid, config_dir, work, num_threads),
+        cell_run(source, grid, config_dir, work, num_threads),
+    )
+    record = {"branched_from": source.name}
+    branch_run(made.run_dir, run.run_dir, tasks, tolerances(target.extra), record)
 
 
 def derive_cell(

@@ -236,6 +236,9 @@ def foreign_runs(runs: Sequence[PlannedRun], stream: str) -> list[str]:
     return found
 
 
+BRANCH_RECORD = ("branched_from", "branched_tasks")
+
+
 def provenance() -> dict:
     """Where a run is made: the code's git commit (``+dirty`` with uncommitted changes; None
     outside a checkout) and the machine, for the run's ``run.json``."""
@@ -302,6 +305,8 @@ def pending_runs(
             "argv": list(run.argv),
             "command": shlex.join(run.command(sys.executable)),
             **(made_on or {}),
+            # a tolerance tree's run keeps the record of the tasks it was branched with
+            **{k: old[k] for k in BRANCH_RECORD if old is not None and k in old},
         }
         run_dir.write_run_record(meta)
         todo.append(run)
