@@ -10,6 +10,7 @@ import subprocess
 import pytest
 from helpers import ROOT
 
+from hispo_pl.benchmark import PlannedRun, export_runs, plan
 from hispo_pl.benchmark.manifest import (
     MANIFEST,
     REFERENCE_FOLDERS,
@@ -104,3 +105,19 @@ def test_the_index_parts_the_reference_results_from_the_studies():
     folders = {p.name for p in RESULTS.iterdir() if p.is_dir()}
     assert _folders_in(reference) == set(REFERENCE_FOLDERS)
     assert _folders_in(studies) == folders - set(REFERENCE_FOLDERS)
+
+
+def test_a_run_without_a_clean_commit_is_named_loudly_at_launch_and_export(tmp_path, capsys):
+    assert plan.provenance_problem({"commit": "a" * 40}) is None
+    assert "no commit" in plan.provenance_problem({"commit": None})
+    assert "uncommitted changes" in plan.provenance_problem({"commit": "a" * 40 + "+dirty"})
+    run = tmp_path / "out" / "scn" / "seed0"
+    run.mkdir(parents=True)
+    (run / "results.json").write_text(json.dumps({"stream": ["a"], "R": [[1.0]]}))
+    (run / "run.json").write_text(json.dumps({"commit": "b" * 40 + "+dirty"}))
+    export_runs(tmp_path / "out", tmp_path / "dest")
+    err = capsys.readouterr().err
+    assert "WARNING: exporting" in err and "uncommitted changes" in err
+    planned = PlannedRun("scn", 0, tmp_path / "new", ("-m", "hispo_pl.cli", "fit"))
+    plan.pending_runs([planned], "pointmaze-1", {"commit": None})
+    assert "WARNING: launching 1 run(s): no commit recorded" in capsys.readouterr().err

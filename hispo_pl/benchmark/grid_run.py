@@ -14,7 +14,7 @@ from pathlib import Path
 from ..rundir import RunDir
 from .derive import derivable_run, derive_run, keep_last_siblings
 from .grid import Cell, Grid, cell_run, committed_reader, describe, plan_cells
-from .plan import PLAN_FILE, PlannedRun
+from .plan import PLAN_FILE, PlannedRun, warn_provenance
 
 
 def export_cell(run_dir: Path, cell: Cell, root: Path, derived_from: Cell | None = None) -> Path:
@@ -29,6 +29,8 @@ def export_cell(run_dir: Path, cell: Cell, root: Path, derived_from: Cell | None
         meta = RunDir(target).read_run_record()
         meta.update(method=cell.label, derived_from=derived_from.name)
         RunDir(target).write_run_record(meta)
+    if RunDir(target).run_record_file.exists():
+        warn_provenance(RunDir(target).read_run_record(), f"exporting {cell.name}")
     plan_file = Path(root) / cell.stream / PLAN_FILE
     if not plan_file.exists():
         plan_file.write_text(json.dumps({"stream": cell.stream}, indent=1))

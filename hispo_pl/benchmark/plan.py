@@ -277,6 +277,33 @@ def provenance() -> dict:
     }
 
 
+def provenance_problem(record: dict) -> str | None:
+    """Why a run's recorded provenance (``run.json``, or :func:`provenance`) does not name
+    the code that made it, or None when it does: no commit, or a tree with uncommitted
+    changes."""
+    commit = record.get("commit")
+    if not commit:
+        return "no commit recorded (made outside a git checkout, or before runs recorded one)"
+    if str(commit).endswith("+dirty"):
+        return f"made from {commit[:12]} with uncommitted changes: no commit holds its code"
+    return None
+
+
+def warn_provenance(record: dict, what: str) -> bool:
+    """Print a loud warning when ``record``'s provenance names no commit that holds the code
+    (:func:`provenance_problem`); whether it warned. Results meant for committing should be
+    made from a clean tree."""
+    problem = provenance_problem(record)
+    if problem is not None:
+        print(
+            f"[benchmark] WARNING: {what}: {problem}. Commit first, then launch, so the run "
+            "can be reproduced from its run.json",
+            file=sys.stderr,
+            flush=True,
+        )
+    return problem is not None
+
+
 def pending_runs(
     runs: Sequence[PlannedRun], stream: str | None, made_on: dict | None = None
 ) -> list[PlannedRun]:
@@ -285,6 +312,8 @@ def pending_runs(
     :func:`provenance` of this launch); prints a line for each skipped or resumed run, noting
     when its command changed since the first launch."""
     todo = []
+    if made_on is not None and runs:
+        warn_provenance(made_on, f"launching {len(runs)} run(s)")
     for run in runs:
         run_dir = RunDir(run.run_dir)
         old = run_dir.read_run_record() if run_dir.run_record_file.exists() else None

@@ -11,7 +11,7 @@ from ..errors import RunDirError
 from ..metrics import METRICS, continual_metrics, mean_std
 from ..results import Decision, StreamResults, fwt_reference
 from ..rundir import RunDir
-from .plan import PLAN_FILE, RUNS_DIR
+from .plan import PLAN_FILE, RUNS_DIR, warn_provenance
 
 
 @dataclass
@@ -83,6 +83,8 @@ def export_runs(out: Path, dest: Path) -> list[Path]:
             if (seed_dir / name).exists():
                 (target / name).write_bytes((seed_dir / name).read_bytes())
                 written.append(target / name)
+        if RunDir(target).run_record_file.exists():
+            warn_provenance(RunDir(target).read_run_record(), f"exporting {seed_dir}")
     return written
 
 
