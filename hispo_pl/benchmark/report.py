@@ -12,6 +12,7 @@ import numpy as np
 from ..errors import RunDirError
 from ..io import atomic_write_text
 from ..rundir import RunDir
+from .claims import CLAIMS_FILE
 from .curves import CURVES_FILE
 from .grid import GRID_FILE
 from .plan import PLAN_FILE, RUNS_DIR
@@ -161,8 +162,8 @@ def embed_reports(doc: Path, root: Path = Path(".")) -> str:
     that :func:`write_report` builds from the runs under ``DIR`` (relative to ``root``), without
     its title line; a grid's report (its folder holds ``grid.json``) is rebuilt from the
     grid's committed runs, a learning-curve study's (its folder holds ``curves.json``) from its
-    runs' curves. Keeps a documentation page equal to what its committed run files
-    give."""
+    runs' curves, the claims (its folder holds ``claims.json``) from the two protocols' runs.
+    Keeps a documentation page equal to what its committed run files give."""
     lines, out, i = Path(doc).read_text().splitlines(), [], 0
     while i < len(lines):
         line = lines[i]
@@ -175,6 +176,8 @@ def embed_reports(doc: Path, root: Path = Path(".")) -> str:
             text = _grid_report_text(target).splitlines()
         elif (target.parent / CURVES_FILE).exists():
             text = _curves_report_text(target).splitlines()
+        elif (target.parent / CLAIMS_FILE).exists():
+            text = _claims_report_text(target).splitlines()
         else:
             text = _stream_report_text(target).splitlines()
         out += [x for x in text[1:] if x or out[-1]]  # without the title, no doubled blank
@@ -183,6 +186,16 @@ def embed_reports(doc: Path, root: Path = Path(".")) -> str:
         if i == len(lines):
             raise ValueError(f"{doc}: {line} has no closing {EMBED_END}")
     return "\n".join(out) + "\n"
+
+
+def _claims_report_text(target: Path) -> str:
+    """The claims report rebuilt from the two roots its folder's ``claims.json`` names."""
+    from .claims import claims_markdown
+
+    if target.name != "claims.md":
+        raise ValueError(f"{target}: a claims folder's report is claims.md")
+    roots = json.loads((target.parent / CLAIMS_FILE).read_text())
+    return claims_markdown(target.parent / roots["house"], target.parent / roots["protocol"])
 
 
 def _curves_report_text(target: Path) -> str:

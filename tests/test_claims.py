@@ -1,0 +1,40 @@
+"""The claims page's verdicts follow stated rules from the committed files: the rules on their
+own, a claim that cannot be tested says what it needs, and the page embeds the report its runs
+give (tests/test_docs.py checks the embed byte for byte)."""
+
+from __future__ import annotations
+
+import pytest
+
+from hispo_pl.benchmark import claims
+
+
+def _stats(per: float, low: float, high: float, mem: float = 1.0) -> claims.Stats:
+    stats = claims.Stats(((per,),), per, 0.0, 0.0, mem, 1)
+    stats.__dict__["per_iqm"] = (per, low, high)  # the interval as drawn, without a bootstrap
+    return stats
+
+
+def test_interval_rules():
+    a, b, c = _stats(99, 98.5, 99.5), _stats(98.8, 98.0, 98.9), _stats(97, 96.5, 97.5)
+    assert claims.overlaps(a, b) and claims.overlaps(b, a)
+    assert not claims.overlaps(a, c) and claims.below(c, a) and not claims.below(a, c)
+    assert claims.verdict(True) == "holds" and claims.verdict(False) == "does not hold"
+
+
+class _Empty:
+    """Committed runs of a protocol with none of its streams run yet."""
+
+    def measured(self, stream):
+        return []
+
+
+@pytest.mark.parametrize("claim", claims.CLAIMS, ids=lambda c: c.text[:40])
+def test_a_claim_without_its_runs_is_not_tested(claim):
+    assert claim.test(_Empty()) is None and claim.needs
+
+
+def test_the_page_says_not_tested_for_a_protocol_without_runs(tmp_path):
+    text = claims.claims_markdown(tmp_path / "house", tmp_path / "protocol")
+    rows = [line for line in text.splitlines() if line.startswith("| ") and "§" in line]
+    assert len(rows) >= 10 and all(row.count("not tested here: needs") == 2 for row in rows)
