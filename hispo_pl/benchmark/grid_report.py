@@ -9,7 +9,8 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,7 @@ from ..rundir import RunDir
 from . import paper
 from .grid import GRID_FILE, SWEEPS_DIR, Grid
 from .records import MethodRow, RunRecord, aggregate, load_records, mean_std, per_run_metrics
-from .tables import run_minutes
+from .tables import derived_footnote, derived_method, run_minutes
 
 BOOTSTRAP_REPS = 2000  # stratified bootstrap resamples per interval
 BOOTSTRAP_SEED = 0
@@ -93,12 +94,14 @@ def iqm_interval(scores: np.ndarray, reps: int = BOOTSTRAP_REPS) -> tuple[float,
 @dataclass
 class AggregateRow:
     """One method over the streams where it has every seed of the grid: the mean of each
-    metric ×100 (a ratio for MEM) that every run has, and the IQM of PER."""
+    metric ×100 (a ratio for MEM) that every run has, and the IQM of PER; its runs derived
+    from another method's instead of trained, as (stream, seed, source method)."""
 
     method: str
     streams: list[str]
     means: dict[str, float]
     iqm: tuple[float, float, float]  # PER ×100: point, low, high
+    derived: list[tuple[str, int, str]] = field(default_factory=list)
 
 
 def aggregate_rows(grid: Grid, committed: Committed) -> list[AggregateRow]:
@@ -106,9 +109,12 @@ def aggregate_rows(grid: Grid, committed: Committed) -> list[AggregateRow]:
     has all the grid's seeds (the paper's Table 1 averages the same way), and the IQM of PER
     over those streams × seeds with its interval."""
     measured: dict[tuple[str, str], dict[int, dict]] = {}
+    derived: dict[tuple[str, str], dict[int, str]] = {}
     for stream in grid.streams:
         for record, metrics, _ in committed.measured(stream):
             measured.setdefault((stream, record.method), {})[record.seed] = metrics
+            if record.derived_from:
+                derived.setdefault((stream, record.method), {})[record.seed] = record.derived_from
     rows = []
     for method in grid.methods:
         streams = [s for s in grid.streams if set(grid.seeds) <= set(measured.get((s, method), {}))]
@@ -123,7 +129,13 @@ def aggregate_rows(grid: Grid, committed: Committed) -> list[AggregateRow]:
             for m in METRICS
             if all(m.name in r for r in runs)
         }
-        rows.append(AggregateRow(method, streams, means, iqm_interval(scores)))
+        sources = [
+            (s, seed, source)
+            for s in streams
+            for seed, source in sorted(derived.get((s, method), {}).items())
+            if seed in grid.seeds
+        ]
+        rows.append(AggregateRow(method, streams, means, iqm_interval(scores), sources))
     return rows
 
 
@@ -146,7 +158,8 @@ def aggregate_markdown(grid: Grid, rows: Sequence[AggregateRow]) -> str:
         point, low, high = row.iqm
         means = " | ".join(_num(row.means.get(m.name), m.digits) for m in METRICS)
         lines.append(
-            f"| {row.method} | {len(row.streams)} of {n_streams} | {means} | "
+            f"| {derived_method(row.method, row.derived)} | {len(row.streams)} of {n_streams} | "
+            f"{means} | "
             f"{point:.1f} [{low:.1f}, {high:.1f}] | "
             + " | ".join(
                 _num(v) for v in (paper.mean_per(row.method, row.streams), *(theirs or (None,) * 3))
@@ -161,9 +174,41 @@ def aggregate_markdown(grid: Grid, rows: Sequence[AggregateRow]) -> str:
         "stream). The paper's PER on these streams is the mean of its per-stream PER "
         "(Tables 6–8) over the streams of our row; its PER, BWT and FWT are its Table 1, "
         "averaged over its six streams (AntMaze included) and three seeds each; FZ there is "
-        "frz here.\n"
+        f"frz here. {_table1_disagrees()}\n"
     )
-    return "\n".join(lines) + "\n" + legend
+    notes = [
+        derived_footnote(row.method, row.derived, len(row.streams) * len(grid.seeds))
+        for row in rows
+        if row.derived
+    ]
+    return "\n".join(lines) + "\n" + legend + "".join(f"\n{note}\n" for note in notes)
+
+
+def _printed_mean(values: Sequence[float]) -> Decimal:
+    """The mean of figures printed to one decimal, rounded half up to one decimal, exactly."""
+    mean = sum(Decimal(f"{v:.1f}") for v in values) / len(values)
+    return mean.quantize(Decimal("0.1"), rounding=ROUND_HALF_UP)
+
+
+def _table1_disagrees() -> str:
+    """Where the paper's Table 1 PER is not the mean of its six per-stream PER (both as
+    printed, to one decimal), largest gap first; empty where it is for every method."""
+    gaps = []
+    for method, (per, _, _) in paper.AGGREGATE.items():
+        rows = [paper.paper_row(stream, method) for stream in paper.PER_STREAM]
+        if any(row is None for row in rows):
+            continue
+        mean = _printed_mean([row["PER"][0] for row in rows])
+        if mean != Decimal(f"{per:.1f}"):
+            gaps.append((abs(mean - Decimal(f"{per:.1f}")), f"{method} {per:.1f} against {mean}"))
+    if not gaps:
+        return ""
+    listed = ", ".join(text for _, text in sorted(gaps, reverse=True))
+    return (
+        "The paper disagrees with itself: for some methods its Table 1 PER is not the mean of "
+        f"its per-stream PER over the six streams (Table 1 against that mean: {listed}), so a "
+        "match with one of the two is not a match with the other."
+    )
 
 
 def _stat(value: tuple[float, float] | None, digits: int = 1) -> str:
@@ -200,7 +245,12 @@ def beside_paper_markdown(committed: Committed) -> str:
             mine = ours.get(method)
             cells = [c for n in paper.METRICS for c in (_stat(theirs.get(n)), _ours(mine, n))]
             seeds = "" if mine is None else len(mine.seeds)
-            lines.append(f"| {method} | {seeds} | " + " | ".join(cells) + " |")
+            name = method if mine is None else derived_method(method, mine.derived)
+            lines.append(f"| {name} | {seeds} | " + " | ".join(cells) + " |")
+        for method, row in ours.items():
+            if row.derived:
+                derived = [("", seed, source) for seed, source in row.derived.items()]
+                lines += ["", derived_footnote(method, derived, len(row.seeds))]
         lines.append("")
     antmaze = [run for s in ("antmaze-1", "antmaze-2") for run in committed.measured(s)]
     lines += [
@@ -216,8 +266,10 @@ def beside_paper_markdown(committed: Committed) -> str:
             f"| {method} | {len(mine)} | {_stat(per)} | {_stat(here_per)} | {_stat(mem)} | "
             f"{_stat(here_mem, 2)} |"
         )
+    disagrees = _table2_disagrees()
     legend = (
-        "\nThe paper's figures as printed (mean ± std over three seeds; FZ is frz; its "
+        ("\n\n" + disagrees + " " if disagrees else "\n")
+        + "The paper's figures as printed (mean ± std over three seeds; FZ is frz; its "
         "VideoGame-2 MEM column for FTN, FRZ, L2 and EWC reads 1.7, 2.7, 2.7 and 1.9, as "
         "printed; on AntMaze its SC1 MEM and its L2 and EWC BWT read 0.0, as printed). "
         "Ours: mean ± std (population) over the seeds committed under docs/results (one "
@@ -226,6 +278,26 @@ def beside_paper_markdown(committed: Committed) -> str:
         "the table of differences on this page.\n"
     )
     return "\n".join(lines) + legend
+
+
+def _table2_disagrees() -> str:
+    """Where the paper's AntMaze ablation (Table 2) is not the mean of its per-stream AntMaze
+    rows, PER and MEM as printed; empty where it is (or where those rows lack the method)."""
+    notes = []
+    for method, (per, mem) in paper.ANTMAZE_ABLATION.items():
+        rows = [paper.paper_row(s, method) for s in paper.PER_STREAM if s.startswith("antmaze")]
+        if not rows or any(row is None for row in rows):
+            continue
+        mean_per = _printed_mean([row["PER"][0] for row in rows])
+        mean_mem = _printed_mean([row["MEM"][0] for row in rows])
+        theirs, mean = f"{per[0]:.1f} / {mem[0]:.1f}", f"{mean_per} / {mean_mem}"
+        if theirs != mean:
+            notes.append(
+                f"The paper disagrees with itself on {method}: its Table 2 gives PER / MEM "
+                f"{theirs}, where its per-stream AntMaze rows average {mean}; ours stands "
+                "beside Table 2's, so a match is with one of its two figures only."
+            )
+    return " ".join(notes)
 
 
 SUMMARY_METHODS = ("hispo", "scn", "ftn", "pnn", "cspo", "csp", "hilow")
@@ -323,10 +395,14 @@ def cost_markdown(grid: Grid, committed: Committed) -> str:
     """What the committed runs of the grid cost: wall hours per method (sweeps included) and
     the share of training, in-fit evaluation and the subspace search."""
     per_method: dict[str, list[RunRecord]] = {}
+    derived: dict[str, list[tuple[str, int, str]]] = {}
     for stream in grid.streams:
         for record in committed.records(stream):
             if record.method in grid.methods and not _copied_from_sweep(record, committed.root):
                 per_method.setdefault(record.method, []).append(record)
+                if record.derived_from:
+                    where = (stream, record.seed, record.derived_from)
+                    derived.setdefault(record.method, []).append(where)
         for seed_dir in sorted((committed.root / stream / SWEEPS_DIR).glob("*/seed*")):
             run = RunDir(seed_dir)
             if run.has_results():
@@ -350,9 +426,8 @@ def cost_markdown(grid: Grid, committed: Committed) -> str:
         spent = sum(phases.values()) or 1.0
         shares = [f"{100 * phases[p] / spent:.0f} %" for p in PHASES]
         lines.append(
-            f"| {method} | {len(records)} | {minutes / 60:.1f} | {minutes / len(records):.1f} | "
-            + " | ".join(shares)
-            + " |"
+            f"| {derived_method(method, derived.get(method))} | {len(records)} | "
+            f"{minutes / 60:.1f} | {minutes / len(records):.1f} | " + " | ".join(shares) + " |"
         )
         total_runs += len(records)
         total_minutes += minutes
@@ -366,7 +441,12 @@ def cost_markdown(grid: Grid, committed: Committed) -> str:
         "each task's time between gradient steps, the rollout evaluation after each task and "
         "the subspace search before its decision.\n"
     )
-    return "\n".join(lines) + "\n" + legend
+    notes = [
+        derived_footnote(m, derived[m], len(per_method[m])) + " Their minutes are the "
+        "re-evaluation they ran, not training."
+        for m in derived
+    ]
+    return "\n".join(lines) + "\n" + legend + "".join(f"\n{note}\n" for note in notes)
 
 
 def plot_iqm_vs_memory(rows: Sequence[AggregateRow], path: Path, title: str) -> bool:

@@ -3,7 +3,7 @@ of the same seed, mean ± std over seeds per method."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,6 +24,29 @@ class RunRecord:
     results: StreamResults
     meta: dict = field(default_factory=dict)
     decisions: list[Decision] = field(default_factory=list)
+    derived_from: str | None = None
+    """The method whose run of the same stream and seed this run was derived from instead of
+    trained (:mod:`.derive`; :func:`derived_source` of its ``run.json``), None if it trained."""
+
+
+def derived_source(method: str, meta: Mapping) -> str | None:
+    """The method whose run ``method``'s run was derived from (``run.json``'s
+    ``derived_from``: ``<stream>/<label>/seed<S>`` or a run directory); None for a run that
+    trained: one without ``derived_from``, or a seed copied from its own method's sweep
+    (``<method>-<sweep><value>``: that sweep run trained, this is the same run).
+
+    Example:
+        >>> derived_source("ft1", {"derived_from": "videogame-1/ftn/seed0"})
+        'ftn'
+        >>> derived_source("l2", {"derived_from": "pointmaze-1/l2-lambda0.01/seed0"}) is None
+        True
+    """
+    source = meta.get("derived_from")
+    if not source:
+        return None
+    parts = Path(str(source)).parts
+    label = parts[-2] if len(parts) > 1 else parts[-1]
+    return None if label == method or label.startswith(f"{method}-") else label
 
 
 def finished_run_dirs(out: Path, results: str = RunDir.RESULTS) -> list[Path]:
@@ -55,7 +78,9 @@ def load_records(out: Path) -> tuple[list[RunRecord], list[str]]:
         except RunDirError as err:
             unreadable.append(f"{seed_dir.parent.name}/{seed_dir.name}: {err}")
             continue
-        records.append(RunRecord(seed_dir.parent.name, seed, results, meta, run.decisions()))
+        method = seed_dir.parent.name
+        derived = derived_source(method, meta)
+        records.append(RunRecord(method, seed, results, meta, run.decisions(), derived))
     streams = {tuple(r.results.stream): r for r in records}
     if len(streams) > 1:
         (a, first), (b, second) = list(streams.items())[:2]
@@ -122,13 +147,15 @@ def format_mean_std(mean: float, std: float, scale: float = 100.0, digits: int =
 class MethodRow:
     """One method's line of the table: each metric of :data:`~hispo_pl.metrics.METRICS` that
     every seed has, as (mean, std) over seeds in fractions (PER, BWT, FWT) or ratios (MEM);
-    the anchors per subspace; the run FWT was measured against."""
+    the anchors per subspace; the run FWT was measured against; the seeds whose run was
+    derived from another method's instead of trained (:attr:`RunRecord.derived_from`)."""
 
     method: str
     seeds: list[int]
     metrics: dict[str, tuple[float, float]] = field(default_factory=dict)
     anchors: dict[str, tuple[float, float]] = field(default_factory=dict)
     fwt_reference: str | None = None
+    derived: dict[int, str] = field(default_factory=dict)  # seed -> the method it derives from
 
 
 def per_run_metrics(records: Sequence[RunRecord]) -> list[tuple[RunRecord, dict, str | None]]:
@@ -161,6 +188,7 @@ def aggregate(
         mine = [(r, m, ref) for r, m, ref in measured if r.method == method]
         metrics = [m for _, m, _ in mine]
         row = MethodRow(method, [r.seed for r, _, _ in mine])
+        row.derived = {r.seed: r.derived_from for r, _, _ in mine if r.derived_from}
         for metric in METRICS:
             if all(metric.name in m for m in metrics):
                 row.metrics[metric.name] = mean_std([m[metric.name] for m in metrics])

@@ -14,6 +14,36 @@ from ..results import CriticDecision, Decision, LossDecision, decisions_table
 from ..tasks import parse_task
 from .records import MethodRow, RunRecord, format_mean_std
 
+DERIVED = "†"  # marks a method some of whose runs were derived, not trained
+
+
+def derived_footnote(method: str, derived: Sequence[tuple[str, int, str]], runs: int) -> str:
+    """The footnote of a method marked :data:`DERIVED`: which of its ``runs`` runs were
+    derived from another method's instead of trained, each ``derived`` as (stream, seed, source
+    method), the stream empty in one stream's table. ``derived_footnote("ft1", [("", 0,
+    "ftn")], 3)`` reads "† ft1: seed 0 derived from ftn's run of the same stream and seed,
+    not trained; its other 2 runs trained (docs/results.md)."."""
+    by_source: dict[str, dict[str, list[int]]] = {}
+    for stream, seed, source in derived:
+        by_source.setdefault(source, {}).setdefault(stream, []).append(seed)
+    parts = []
+    for source, streams in by_source.items():
+        each = [
+            f"{stream + ' ' if stream else ''}seed{'s' if len(seeds) > 1 else ''} "
+            + ", ".join(str(s) for s in sorted(seeds))
+            for stream, seeds in streams.items()
+        ]
+        where = " and ".join([", ".join(each[:-1]), each[-1]] if len(each) > 1 else each)
+        parts.append(f"{where} derived from {source}'s run of the same stream and seed")
+    rest = runs - len(derived)
+    trained = f"; its other {rest} run{'s' if rest > 1 else ''} trained" if rest else ""
+    return f"{DERIVED} {method}: {'; '.join(parts)}, not trained{trained} (docs/results.md)."
+
+
+def derived_method(method: str, derived: Sequence) -> str:
+    """``method``, marked :data:`DERIVED` where any of its runs is ``derived``."""
+    return f"{method}{DERIVED}" if derived else method
+
 
 def _cell(value: tuple[float, float] | None, scale: float, digits: int, seeds: int = 2) -> str:
     """``mean ± std``; one seed's value alone (a spread of one run says nothing)."""
@@ -41,7 +71,8 @@ def table_markdown(rows: Sequence[MethodRow], notes: Sequence[str], stream: str 
             if m.name == "FWT" and "FWT" not in row.metrics and notes:
                 cell = (cell + " ¹").strip()
             cells.append(cell)
-        lines.append(f"| {row.method} | {n} | " + " | ".join(cells) + f" | {anchors} |")
+        name = derived_method(row.method, row.derived)
+        lines.append(f"| {name} | {n} | " + " | ".join(cells) + f" | {anchors} |")
     legend = (
         "\nPER, BWT, FWT: success ×100, mean ± std (population) over seeds (one seed: its "
         "value); MEM: stored size "
@@ -50,7 +81,13 @@ def table_markdown(rows: Sequence[MethodRow], notes: Sequence[str], stream: str 
         "for bc- methods).\n"
     )
     footnotes = "".join(f"\n¹ {note}" for note in notes)
-    return title + "\n".join(lines) + "\n" + legend + footnotes + ("\n" if notes else "")
+    derived = [
+        derived_footnote(row.method, [("", s, m) for s, m in row.derived.items()], len(row.seeds))
+        for row in rows
+        if row.derived
+    ]
+    footnotes += "".join(f"\n{note}" for note in derived)
+    return title + "\n".join(lines) + "\n" + legend + footnotes + ("\n" if footnotes else "")
 
 
 def table_csv(rows: Sequence[MethodRow]) -> str:
@@ -137,10 +174,14 @@ def before_training_markdown(records: Sequence[RunRecord], stream: str = "") -> 
         "| method | seeds | " + " | ".join(names[1:]) + " |",
         "|---|---:|" + "---:|" * (len(names) - 1),
     ]
+    notes = []
     for method in dict.fromkeys(r.method for r in records):
         mine = [r for r in records if r.method == method and r.results.stream == specs]
         if not mine:
             continue
+        derived = [("", r.seed, r.derived_from) for r in mine if r.derived_from]
+        if derived:
+            notes.append(derived_footnote(method, derived, len(mine)))
         before = np.stack([np.diagonal(r.results.matrix, offset=1) for r in mine])
         cells = [
             f"{100 * col.mean():.0f} ({100 * col.min():.0f}–{100 * col.max():.0f})"
@@ -148,12 +189,13 @@ def before_training_markdown(records: Sequence[RunRecord], stream: str = "") -> 
             else f"{100 * col[0]:.0f}"
             for col in before.T
         ]
-        lines.append(f"| {method} | {len(mine)} | " + " | ".join(cells) + " |")
+        name = derived_method(method, derived)
+        lines.append(f"| {name} | {len(mine)} | " + " | ".join(cells) + " |")
     legend = (
         "\nSuccess ×100 on each task evaluated right after the task before it, before any "
         "step on it; mean over seeds (min–max).\n"
     )
-    return "\n".join(lines) + "\n" + legend
+    return "\n".join(lines) + "\n" + legend + "".join(f"\n{note}\n" for note in notes)
 
 
 def run_minutes(record: RunRecord) -> float:
