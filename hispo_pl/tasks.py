@@ -2,11 +2,13 @@
 
 A task spec is ``<family>-<maze>[-<variant>][[<episodes>]]``, e.g. ``pointmaze-umaze-PO[500]``:
 PointMaze, U-maze, permuted observations, 500 expert episodes. Variant defaults to ``N``
-and episodes to 500. A stream is a named list of task specs (``pointmaze-1``).
+and episodes to 500. A stream is a named list of task specs (``pointmaze-1``), or a random
+one drawn over a family's tasks (``random-antmaze-8@3``: 8 AntMaze tasks, generator seed 3).
 """
 
 from __future__ import annotations
 
+import hashlib
 import re
 from dataclasses import dataclass, field, replace
 from typing import Literal
@@ -295,16 +297,84 @@ STREAMS |= {
 }
 
 
+RANDOM_STREAM = re.compile(r"^random-(?P<family>[^@]+)-(?P<n>\d+)@(?P<seed>\d+)$")
+RANDOM_GRAMMAR = (
+    f"random-<family>-<n>@<seed> (family: {' | '.join(FAMILIES)}; n >= 1 tasks; "
+    "seed >= 0), e.g. random-antmaze-8@3"
+)
+
+
+def task_spec(family: str, maze: str, variant: str = "N") -> str:
+    """A task's spec as the named streams write it: the game mazes, whose only variant is N,
+    without it; every spec at the family's default episodes."""
+    fam = FAMILIES[family]
+    name = f"{family}-{maze}" if fam.game else f"{family}-{maze}-{variant}"
+    return f"{name}[{fam.default_episodes}]"
+
+
+def task_space(family: str) -> list[str]:
+    """Every task of ``family`` (maze × variant, in the order the family lists them): what a
+    random stream draws from, in a fixed order so that every machine draws alike."""
+    if family not in FAMILIES:
+        raise TaskSpecError(f"unknown family {family!r}; known: {', '.join(FAMILIES)}")
+    fam = FAMILIES[family]
+    return [task_spec(family, maze, variant) for maze in fam.mazes for variant in fam.variants]
+
+
+def _draw(family: str, seed: int, i: int) -> int:
+    """Task ``i``'s draw: a hash, not a generator, so no library version changes it."""
+    return int.from_bytes(hashlib.sha256(f"{family}/{seed}/{i}".encode()).digest(), "big")
+
+
+def random_stream(family: str, n: int, seed: int) -> list[str]:
+    """``n`` tasks drawn uniformly, with repeats, from :func:`task_space`; task ``i`` depends on
+    the family, the seed and ``i`` only, so a longer stream of the same family and seed extends
+    a shorter one. Adding a maze or a variant to a family changes its random streams."""
+    space = task_space(family)
+    return [space[_draw(family, seed, i) % len(space)] for i in range(n)]
+
+
+def parse_random_stream(name: str) -> tuple[str, int, int] | None:
+    """``random-antmaze-8@3`` → ``("antmaze", 8, 3)``; None for a name that is not random.
+
+    Raises:
+        TaskSpecError: a ``random-`` name that breaks the grammar (the message shows it).
+    """
+    if not name.startswith("random-"):
+        return None
+    m = RANDOM_STREAM.match(name)
+    if m is None:
+        raise TaskSpecError(f"malformed random stream {name!r}: write {RANDOM_GRAMMAR}")
+    family, n, seed = m["family"], int(m["n"]), int(m["seed"])
+    if family not in FAMILIES:
+        raise TaskSpecError(f"unknown family {family!r} in {name!r}: write {RANDOM_GRAMMAR}")
+    if n < 1:
+        raise TaskSpecError(f"a random stream needs n >= 1 tasks in {name!r}: {RANDOM_GRAMMAR}")
+    if name != f"random-{family}-{n}@{seed}":
+        raise TaskSpecError(
+            f"write {name!r} as random-{family}-{n}@{seed} (no leading zeros): one name per stream"
+        )
+    return family, n, seed
+
+
+def stream_specs(name: str) -> list[str]:
+    """The task specs of a stream name: a named stream (``pointmaze-1``) or a random one."""
+    random = parse_random_stream(name)
+    if random is not None:
+        return random_stream(*random)
+    if name not in STREAMS:
+        raise TaskSpecError(
+            f"unknown stream {name!r}; known streams: {', '.join(sorted(STREAMS))}; a random "
+            f"stream: {RANDOM_GRAMMAR}; or give a list of task specs"
+        )
+    return list(STREAMS[name])
+
+
 def parse_stream(stream: str | list[str]) -> list[Task]:
-    """A stream name (``pointmaze-1``) or an explicit list of task specs, as tasks."""
-    if isinstance(stream, str):
-        if stream not in STREAMS:
-            raise TaskSpecError(
-                f"unknown stream {stream!r}; known streams: {', '.join(sorted(STREAMS))}, "
-                "or give a list of task specs"
-            )
-        stream = STREAMS[stream]
-    return [parse_task(s) for s in stream]
+    """A stream name (``pointmaze-1``, ``random-antmaze-8@3``) or an explicit list of task
+    specs, as tasks."""
+    specs = stream_specs(stream) if isinstance(stream, str) else stream
+    return [parse_task(s) for s in specs]
 
 
 def unseen_variant_tasks(tasks: list[Task], reads_observation: bool) -> list[Task]:

@@ -187,7 +187,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         out,
         args.num_threads,
         args.steps_per_task,
-        extra,
+        (*plan.stream_fit_args(args.stream), *extra),
     )
     if args.dry_run:
         from ..fit import check_fit_args
@@ -203,7 +203,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 problems += 1
                 print(f"[benchmark] {run.name}: invalid: {checked[run.method]}", file=sys.stderr)
         return 2 if problems else 0
-    stream_name = stream_config.stem
+    stream_name = plan.stream_name(args.stream, stream_config)
     foreign = plan.foreign_runs(runs, stream_name)
     if foreign:
         raise RunDirError(

@@ -23,7 +23,7 @@ from ..rundir import RunDir
 from .branch import EPS_FLAGS
 from .configs import saved_setting
 from .derive import sibling_derivations
-from .plan import PlannedRun, plan_run, planned_tasks, stream_config_path
+from .plan import PlannedRun, plan_run, planned_tasks, stream_config_path, stream_fit_args
 
 GRIDS_DIR = "grids"
 GRID_FILE = "grid.json"  # the grid's definition, beside its reports
@@ -348,7 +348,7 @@ def cell_run(
         Path(work) / cell.stream,
         num_threads,
         grid.steps_per_task,
-        (*grid.extra, *cell.extra),
+        (*stream_fit_args(cell.stream), *grid.extra, *cell.extra),
     )
 
 

@@ -45,7 +45,9 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument(
-        "--stream", help="stream name (CONFIG_DIR/streams/<name>.yaml) or a YAML path"
+        "--stream",
+        help="stream name (CONFIG_DIR/streams/<name>.yaml), a random stream "
+        "random-<family>-<n>@<seed> (on its family's <family>-1.yaml), or a YAML path",
     )
     parser.add_argument(
         "--methods",

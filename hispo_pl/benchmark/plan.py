@@ -64,16 +64,23 @@ def parse_seeds(spec: str) -> list[int]:
 
 
 def stream_config_path(stream: str, config_dir: Path) -> Path:
-    """``pointmaze-1`` → ``config_dir/streams/pointmaze-1.yaml``; a path to a YAML file is
-    taken as is.
+    """``pointmaze-1`` → ``config_dir/streams/pointmaze-1.yaml``; a random stream
+    (``random-antmaze-8@3``) → its family's first reference stream's config
+    (``antmaze-1.yaml``: budget, backbone, data settings), its tasks set by
+    :func:`stream_fit_args`; a path to a YAML file is taken as is.
 
     Raises:
         FileNotFoundError: neither exists (the message lists the known streams).
+        TaskSpecError: a malformed random stream name (the message shows the grammar).
     """
+    from ..tasks import parse_random_stream
+
     as_path = Path(stream)
     if as_path.suffix in (".yaml", ".yml") and as_path.is_file():
         return as_path.resolve()
-    path = Path(config_dir) / "streams" / f"{stream}.yaml"
+    random = parse_random_stream(stream)
+    base = f"{random[0]}-1" if random is not None else stream
+    path = Path(config_dir) / "streams" / f"{base}.yaml"
     if not path.is_file():
         known = sorted(p.stem for p in (Path(config_dir) / "streams").glob("*.yaml"))
         raise FileNotFoundError(
@@ -81,6 +88,23 @@ def stream_config_path(stream: str, config_dir: Path) -> Path:
             "(or pass a YAML path; --config-dir sets where configs live)"
         )
     return path.resolve()
+
+
+def stream_fit_args(stream: str) -> tuple[str, ...]:
+    """The fit arguments a stream name adds to its config's: a random stream's name, which the
+    reference config it borrows (:func:`stream_config_path`) does not hold; none otherwise
+    (a named stream, a YAML path)."""
+    from ..tasks import parse_random_stream
+
+    if Path(stream).suffix in (".yaml", ".yml"):
+        return ()
+    return ("--data.stream", stream) if parse_random_stream(stream) is not None else ()
+
+
+def stream_name(stream: str, stream_config: Path) -> str:
+    """The name a benchmark records for its stream: a random stream's own name, else its
+    config's stem (``pointmaze-1``, or a YAML file's name)."""
+    return stream if stream_fit_args(stream) else Path(stream_config).stem
 
 
 def fit_argv(
