@@ -11,7 +11,8 @@ run is skipped). The paper's recipe on PointMaze, HBC then flat BC, two seeds, 1
 
 writes ``curves.md`` (success per step, mean ± std over seeds, and B), ``curves.csv`` and
 ``curves.png`` into ``--export`` beside each finished run's small files (``result.json``,
-``config.yaml``, ``run.json``). ``--report-only`` rebuilds them from ``--export`` alone.
+``config.yaml``, ``run.json``). ``--report-only`` rebuilds them from ``--export`` alone;
+``--collect`` exports the runs finished so far (another process may still run the rest).
 Arguments after ``--`` go to every fit.
 """
 
@@ -72,14 +73,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--export", type=Path, required=True)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--config-dir", type=Path, default=Path("configs"))
-    parser.add_argument("--report-only", action="store_true")
+    parser.add_argument("--report-only", action="store_true", help="rebuild from --export alone")
+    parser.add_argument(
+        "--collect", action="store_true", help="export the runs finished under --out, launch none"
+    )
     args = parser.parse_args(argv)
     settings = [s.strip() for s in args.settings.split(",") if s.strip()]
     runner = _single_task_table()
     tasks = [parse_task(t) for t in runner.expand_tasks(args.tasks.split(","))]
     if len({t.family for t in tasks}) != 1:
         parser.error("--tasks: one family at a time (its configs are <setting>/<family>-<maze>)")
-    if not args.report_only:
+    if args.collect:
+        export_runs(args.out, args.export)
+    elif not args.report_only:
         for setting in settings:  # the budget's setting first: its curves choose B
             config = str(args.config_dir / setting / f"{tasks[0].family}-{{maze}}.yaml")
             runner.main(
