@@ -24,7 +24,7 @@ from .console import lightning_notices_once, quiet_lightning_notices, say, task_
 from .data.datamodule import TaskDataModule
 from .errors import Interrupted
 from .io import atomic_save
-from .metrics import continual_metrics, module_bytes, results_row_table
+from .metrics import continual_metrics, memory_ratio, module_bytes, results_row_table
 from .modules.hispo import SubspacePolicy
 from .results import StreamResults
 from .resume import MissingCheckpointError, RunDirLock, TaskCheckpoint, resume_progress
@@ -216,12 +216,15 @@ class ContinualLoop:
                 decided = self.run_dir.decisions()
                 subspaces = list(dict.fromkeys(d.subspace for d in decided))
                 self._layout_logged = True
-            log_task_end(self._loggers, k, row, picture, subspaces)
+            log_task_end(self._loggers, k, row, picture, subspaces, self._memory())
         atomic_save(
             self.run_dir.checkpoint(k), lambda tmp: trainer.save_checkpoint(tmp, weights_only=False)
         )
         if self.config_text is not None:
             self.run_dir.write_task_config(k, self.config_text)
+        memory = progress.setdefault("mem_per_task", [])
+        memory += [None] * (len(progress["rows"]) - len(memory))  # tasks of an older run
+        memory.append(self._memory())
         progress["rows"].append(list(row))
         elapsed = time.perf_counter() - start
         progress["wall_time_s"].append(elapsed)
@@ -232,6 +235,13 @@ class ContinualLoop:
         decisions = self.run_dir.decisions()
         say(task_summary(k, len(self.stream), elapsed, row, decisions, phases))
         quiet_lightning_notices()  # shown with the first task; the next ones repeat them
+
+    def _memory(self) -> float | None:
+        """MEM of the module as it stands (after a task's decisions); None without a
+        single-task model to measure it against."""
+        if not self.reference_bytes:
+            return None
+        return memory_ratio(module_bytes(self.module), self.reference_bytes)
 
     def _results(self, progress: dict) -> StreamResults:
         n = len(self.stream)
@@ -249,6 +259,7 @@ class ContinualLoop:
             metrics=continual_metrics(R, self.scratch_success, stored, self.reference_bytes),
             stored_bytes=stored,
             table=results_row_table(R),
+            mem_per_task=progress.get("mem_per_task"),
         )
         if isinstance(self.module, SubspacePolicy):
             names = self.module.subspace_names

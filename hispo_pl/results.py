@@ -269,8 +269,9 @@ def decisions_table(
 class StreamResults:
     """A finished stream (``results.json``): its tasks, the success matrix ``R`` (fractions;
     None above the diagonal), wall and phase times per task, the datasets it read, the metrics
-    of :data:`~hispo_pl.metrics.METRICS` it has, the stored bytes, anchors and anchor weights
-    per subspace, and ``R`` as printed. ``None``: a file from before that key existed."""
+    of :data:`~hispo_pl.metrics.METRICS` it has, the stored bytes, MEM after each task, anchors
+    and anchor weights per subspace, and ``R`` as printed. ``None``: a file from before that
+    key existed."""
 
     stream: list[str]
     R: list[list[float | None]]
@@ -282,6 +283,7 @@ class StreamResults:
     anchors: dict[str, int] | None = None
     alphas: dict[str, list[list[float]]] | None = None
     table: str = ""
+    mem_per_task: list[float | None] | None = None  # MEM after each task (None: not measured)
     extra: dict = field(default_factory=dict)
 
     @property
@@ -309,7 +311,7 @@ class StreamResults:
                 for m in METRICS
                 if m.of_model == of_model and m.name in self.metrics
             }
-        for name in ("anchors", "alphas"):
+        for name in ("mem_per_task", "anchors", "alphas"):
             if getattr(self, name) is not None:
                 out[name] = getattr(self, name)
         return {**out, "table": self.table, **self.extra}

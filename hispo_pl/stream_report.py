@@ -53,6 +53,11 @@ def stream_metrics(results: StreamResults) -> dict[str, float]:
     }
 
 
+def _mem_logged(results: StreamResults) -> bool:
+    """Whether the last task's end logged ``stream/MEM`` (a run that measured MEM per task)."""
+    return bool(results.mem_per_task) and results.mem_per_task[-1] is not None
+
+
 def anchor_metrics(results: StreamResults) -> dict[str, float]:
     """``anchors/<subspace>/count`` of a finished stream: the HParams tab's anchor columns."""
     return {f"anchors/{k}/count": float(v) for k, v in (results.anchors or {}).items()}
@@ -192,12 +197,16 @@ def log_task_end(
     row: Sequence[float],
     picture: Figure | None,
     subspaces: Sequence[str] | None = None,
+    memory: float | None = None,
 ) -> None:
-    """After task ``task_index``: the forgetting curves' next point, and the rollout picture.
-    With ``subspaces`` (the names the method decides on; [] for none), TensorBoard also gets
-    the Custom Scalars layout (give them once: the tab reads one layout per run)."""
+    """After task ``task_index``: the forgetting curves' next point, the memory so far
+    (``stream/MEM``, when measured) and the rollout picture. With ``subspaces`` (the names the
+    method decides on; [] for none), TensorBoard also gets the Custom Scalars layout (give them
+    once: the tab reads one layout per run)."""
     step = task_index + 1
     metrics = task_row_metrics(task_index, row)
+    if memory is not None:
+        metrics["stream/MEM"] = memory
     for logger in loggers:
         logger.log_metrics(metrics, step=step)
         if not isinstance(logger, TensorBoardLogger):
@@ -218,11 +227,13 @@ def log_stream_end(
     anchor weights and the decisions."""
     step = len(results.R)
     metrics = stream_metrics(results)
+    # MEM after the last task is its task-end point already (log_task_end), not logged twice
+    once = {k: v for k, v in metrics.items() if k != "stream/MEM" or not _mem_logged(results)}
     alphas = results.alphas or {}
     hparams = chosen_hparams(settings, decisions)
     for logger in loggers:
         if isinstance(logger, TensorBoardLogger):
-            logger.log_metrics(metrics, step=step)
+            logger.log_metrics(once, step=step)
             write_hparams(logger, hparams, [*metrics, *anchor_metrics(results)], step)
             writer = logger.experiment
             matrix = success_matrix_figure(results.R, results.stream)
@@ -239,5 +250,5 @@ def log_stream_end(
                 writer.add_text("stream/anchors", anchors_markdown(decisions), step)
         else:  # no pictures: the anchor weights as scalars
             logger.log_hyperparams(hparams)
-            logger.log_metrics({**metrics, **alpha_metrics(alphas)}, step=step)
+            logger.log_metrics({**once, **alpha_metrics(alphas)}, step=step)
         logger.save()

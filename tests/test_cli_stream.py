@@ -116,9 +116,14 @@ def _assert_stream_report(run_dir: Path, results: dict) -> None:
     acc = EventAccumulator(str(run_dir), size_guidance={"images": 0, "tensors": 0})
     acc.Reload()
     tags = acc.Tags()
-    for metric, scale in (("PER", 100), ("BWT", 100), ("MEM", 1)):  # success in %, as printed
+    for metric, scale in (("PER", 100), ("BWT", 100)):  # success in %, as printed
         (point,) = acc.Scalars(f"stream/{metric}")
         assert point.step == 2 and point.value == pytest.approx(scale * results[metric])
+    # memory after each task, the last one the stream's MEM
+    memory = [(p.step, p.value) for p in acc.Scalars("stream/MEM")]
+    assert memory == [(k + 1, pytest.approx(m)) for k, m in enumerate(results["mem_per_task"])]
+    assert results["mem_per_task"][-1] == pytest.approx(results["MEM"])
+    assert results["mem_per_task"][0] == pytest.approx(1.0, rel=1e-3)  # one anchor each: one model
     assert "hp_metric" not in tags["scalars"]
     curve = acc.Scalars("stream/success/T01")
     R = results["R"]

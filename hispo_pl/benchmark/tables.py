@@ -198,6 +198,33 @@ def before_training_markdown(records: Sequence[RunRecord], stream: str = "") -> 
     return "\n".join(lines) + "\n" + legend + "".join(f"\n{note}\n" for note in notes)
 
 
+def memory_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
+    """MEM after each task, per method (mean over the seeds that measured it, min–max where
+    they differ): how a method's memory grows with the stream. Empty when no run measured it."""
+    measured = [r for r in records if r.results.mem_per_task and None not in r.results.mem_per_task]
+    if not measured:
+        return ""
+    n = max(len(r.results.mem_per_task) for r in measured)
+    lines = [
+        f"# Memory after each task{': ' + stream if stream else ''}\n",
+        "| method | seeds | " + " | ".join(f"T{k + 1:02d}" for k in range(n)) + " |",
+        "|---|---:|" + "---:|" * n,
+    ]
+    for method in dict.fromkeys(r.method for r in measured):
+        mine = np.array([r.results.mem_per_task for r in measured if r.method == method])
+        cells = [
+            f"{col.mean():.2f}" + (f" ({col.min():.2f}–{col.max():.2f})" if np.ptp(col) else "")
+            for col in mine.T
+        ]
+        lines.append(f"| {method} | {len(mine)} | " + " | ".join(cells) + " |")
+    legend = (
+        "\nMEM (stored size over one single-task model) after each task's decisions, mean over "
+        "the seeds (min–max where they differ); runs made before MEM was recorded per task are "
+        "left out.\n"
+    )
+    return "\n".join(lines) + "\n" + legend
+
+
 def run_minutes(record: RunRecord) -> float:
     """A run's wall minutes: the sum of its tasks' ``wall_time_s``."""
     return sum(record.results.wall_time_s or []) / 60
