@@ -9,6 +9,7 @@ from pathlib import Path
 
 from .cli_errors import VerbParser
 from .errors import UserError
+from .io import atomic_write_text
 
 MAX_CONFIG_NODES = 100_000  # a hand-written config has hundreds; aliases must not explode
 
@@ -136,6 +137,6 @@ def config_main(argv: list[str]) -> int:
         for name in config_names(root):
             target = args.dest / f"{name}.yaml"
             target.parent.mkdir(parents=True, exist_ok=True)
-            target.write_text((root / f"{name}.yaml").read_text())
+            atomic_write_text(target, (root / f"{name}.yaml").read_text())
         print(f"copied {len(config_names(root))} configs to {args.dest}")
     return 0

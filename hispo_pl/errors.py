@@ -25,6 +25,11 @@ class RunDirError(UserError, ValueError):
     by another run."""
 
 
+class LinkedFileError(UserError, ValueError):
+    """A file to copy that is a symbolic link: a copy carries only the files of the folder it
+    copies, never one a link points to elsewhere."""
+
+
 class TrainingDivergedError(UserError, FloatingPointError):
     """A loss or a weight that stopped being finite; nothing non-finite is saved."""
 

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 import torch
-from lightning.pytorch.cli import LightningCLI
+from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
 
 from .cli_errors import dotted_flags, parse_error_line, unknown_flag, without_flag
 from .cli_stream import run_stream_from_cli
@@ -18,11 +18,22 @@ from .commands import flip_note, set_num_threads
 from .console import print_stream_results
 from .data.datamodule import TaskDataModule
 from .errors import ConfigError, Interrupted, UserError
+from .io import replace_link
 from .modules.hbc import GoalConditionedBC
 from .presets import apply_preset
 from .run_checks import METHOD_KNOBS, apply_method_knobs, validate_config
 from .rundir import RunDir
 from .tasks import unseen_variant_tasks, unseen_variants_message
+
+
+class SaveConfig(SaveConfigCallback):
+    """Lightning's ``config.yaml`` beside a run's logs, with a link at its place replaced
+    rather than written through (Lightning opens the name as it is)."""
+
+    def setup(self, trainer, pl_module, stage: str) -> None:
+        if trainer.log_dir is not None:
+            replace_link(Path(trainer.log_dir) / self.config_filename)
+        super().setup(trainer, pl_module, stage)
 
 
 class HispoCLI(LightningCLI):
@@ -240,6 +251,7 @@ def run_lightning_cli(args: list[str] | None = None, run: bool = True) -> HispoC
         subclass_mode_model=True,
         args=args,
         trainer_defaults={"accelerator": "cpu", "devices": 1},
+        save_config_callback=SaveConfig,
         save_config_kwargs={"overwrite": True},
         parser_kwargs={"allow_abbrev": False},  # --trainer.max_step is a typo, not max_steps
         run=run,

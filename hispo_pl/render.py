@@ -24,6 +24,7 @@ from matplotlib.patches import Patch
 
 from .envs.drawing import FAILURE, FLOOR, GOAL, LABELS, START, STYLES, WALL
 from .envs.family import family_behaviour
+from .io import write_figure
 from .tasks import Task, parse_task
 
 if TYPE_CHECKING:
@@ -188,7 +189,7 @@ def save_figure(fig: Figure, out: str | Path, dpi: int = 150) -> Path:
     """Write ``fig`` (PNG, or any format its suffix names), creating the folder."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=dpi, bbox_inches="tight")
+    write_figure(fig, out, dpi=dpi, bbox_inches="tight")
     return out
 
 

@@ -17,7 +17,7 @@ import torch
 
 from .config import upgrade_fingerprint
 from .errors import RunDirError
-from .io import atomic_save
+from .io import atomic_save, open_append
 from .run_checks import upgrade_callback_keys
 from .rundir import RunDir
 
@@ -121,7 +121,7 @@ class RunDirLock:
             import fcntl
         except ImportError:  # not POSIX: no lock
             return self
-        f = open(self.path, "a+")
+        f = open_append(self.path, "a+")
         try:
             fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import RunDirError
-from .io import atomic_write_text
+from .io import atomic_save, atomic_write_text, open_append
 from .results import Decision, StreamResults, TaskResult
 
 
@@ -273,7 +273,7 @@ class RunDir:
 
     def append_decisions(self, records: Iterable[Decision | dict]) -> None:
         self.path.mkdir(parents=True, exist_ok=True)
-        with open(self.decisions_file, "a") as f:
+        with open_append(self.decisions_file) as f:
             for record in records:
                 if isinstance(record, Decision):
                     record = record.to_json()
@@ -297,7 +297,12 @@ class RunDir:
         """The search's candidates and losses of one subspace at the end of ``task``."""
         path = self.search_file(task, subspace)
         path.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(path, **arrays)
+
+        def save(tmp: Path) -> None:
+            with open(tmp, "xb") as f:  # a file object: np.savez adds .npz to a name
+                np.savez(f, **arrays)
+
+        atomic_save(path, save)
 
     def read_searches(self) -> dict[tuple[int, str], dict[str, np.ndarray]]:
         """Every saved search, keyed by (0-based task, subspace)."""

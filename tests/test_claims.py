@@ -38,3 +38,10 @@ def test_the_page_says_not_tested_for_a_protocol_without_runs(tmp_path):
     text = claims.claims_markdown(tmp_path / "house", tmp_path / "protocol")
     rows = [line for line in text.splitlines() if line.startswith("| ") and "§" in line]
     assert len(rows) >= 10 and all(row.count("not tested here: needs") == 2 for row in rows)
+
+
+def test_growth_order_names_the_polynomial_a_memory_curve_follows():
+    assert claims.growth_order([1.0, 2.0, 3.0, 4.0]) == 1
+    assert claims.growth_order([1.0, 2.96, 5.88, 9.77, 14.61]) == -1  # rounded: not exact
+    assert claims.growth_order([k * k + 3 * k + 1 for k in range(8)]) == 2
+    assert claims.growth_order([2.0**k for k in range(8)]) == -1

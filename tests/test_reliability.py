@@ -612,3 +612,105 @@ def test_hyperparameters_that_do_not_fit_the_weights_are_refused_before_allocati
     err = capsys.readouterr().err.strip()
     assert "its hyperparameters make" in err and "its weights hold" in err
     assert len(err.splitlines()) == 1
+
+
+# --- 11. writes stay in the folder asked: links replaced, linked sources refused ------------
+
+
+def _link_to_victim(link: Path, victim: Path, text: str = "victim\n") -> Path:
+    """A symbolic link at ``link`` to ``victim``, a file outside the folder being written."""
+    victim.write_text(text)
+    link.parent.mkdir(parents=True, exist_ok=True)
+    link.symlink_to(victim)
+    return victim
+
+
+def test_export_refuses_a_run_file_that_is_a_link_and_writes_nothing(tmp_path, capsys):
+    run = _finished_run(tmp_path / "out", "scn", 0, PM1_TASKS)
+    secret = _link_to_victim(run / "config.yaml", tmp_path / "secret", "SECRET\n")
+    dest = tmp_path / "dest"
+    argv = ["benchmark", "--report-only", "--out", str(tmp_path / "out"), "--export", str(dest)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"{run / 'config.yaml'} is a symbolic link" in err and len(err.splitlines()) == 1
+    assert not dest.exists() and secret.read_text() == "SECRET\n"
+
+
+def test_export_and_report_replace_links_at_the_destination(tmp_path, capsys):
+    _finished_run(tmp_path / "out", "scn", 0, PM1_TASKS)
+    dest, outside = tmp_path / "dest", tmp_path / "outside"
+    victims = [
+        _link_to_victim(dest / "scn" / "seed0" / "results.json", tmp_path / "v1"),
+        _link_to_victim(dest / "table.md", tmp_path / "v2"),
+        _link_to_victim(dest / "perf_vs_memory.png", tmp_path / "v3"),
+    ]
+    outside.mkdir()
+    (dest / "ftn").symlink_to(outside, target_is_directory=True)
+    _finished_run(tmp_path / "out", "ftn", 0, PM1_TASKS)
+    argv = ["benchmark", "--report-only", "--out", str(tmp_path / "out"), "--export", str(dest)]
+    assert main(argv) == 0
+    assert all(v.read_text() == "victim\n" for v in victims) and not list(outside.iterdir())
+    for path in (dest / "scn/seed0/results.json", dest / "table.md", dest / "ftn/seed0/run.json"):
+        assert path.is_file() and not path.is_symlink(), path
+    assert not (dest / "ftn").is_symlink() and "| scn |" in (dest / "table.md").read_text()
+
+
+def test_the_grids_export_replaces_a_linked_config_and_refuses_a_linked_source(tmp_path):
+    from hispo_pl.benchmark.grid import Cell
+    from hispo_pl.benchmark.grid_run import export_cell
+    from hispo_pl.errors import LinkedFileError
+
+    run = _finished_run(tmp_path / "work", "ftn", 0, PM1_TASKS)
+    (run / "config.yaml").write_text("model: {}\n")
+    cell, root = Cell("pointmaze-1", "ftn", "ftn", 0), tmp_path / "root"
+    victim = _link_to_victim(cell.result_dir(root) / "config.yaml", tmp_path / "victim")
+    _link_to_victim(root / "pointmaze-1" / "benchmark.json", tmp_path / "victim2")
+    target = export_cell(run, cell, root)
+    assert victim.read_text() == "victim\n" and (tmp_path / "victim2").read_text() == "victim\n"
+    assert (target / "config.yaml").read_text() == "model: {}\n"
+    assert not (target / "config.yaml").is_symlink()
+    (run / "decisions.jsonl").symlink_to(tmp_path / "victim")
+    with pytest.raises(LinkedFileError, match="decisions.jsonl is a symbolic link"):
+        export_cell(run, cell, root)
+
+
+def test_a_manifest_replaces_its_link_and_escapes_what_run_json_says(tmp_path):
+    from hispo_pl.benchmark.manifest import MANIFEST, write_manifests
+
+    folder = tmp_path / "pointmaze-1"
+    run = _finished_run(folder, "scn", 0, PM1_TASKS)
+    crafted = ["-m", "hispo_pl.cli", "fit", "x |\n| injected | row | here | `code` |\n"]
+    record = {"argv": crafted, "commit": "abc|def", "machine": {"platform": "a\nb"}}
+    (run / "run.json").write_text(json.dumps(record))
+    victim = _link_to_victim(folder / MANIFEST, tmp_path / "victim")
+    write_manifests(tmp_path, commit_of=lambda path: None)
+    assert victim.read_text() == "victim\n" and not (folder / MANIFEST).is_symlink()
+    rows = [ln for ln in (folder / MANIFEST).read_text().splitlines() if ln.startswith("|")]
+    assert len(rows) == 3 and "injected" in rows[2]  # the header, its rule, the run
+    assert rows[2].replace("\\|", "").count("|") == 5 and "\\`code\\`" in rows[2]
+
+
+def test_run_files_appended_or_locked_replace_a_link(tmp_path):
+    from hispo_pl.benchmark.launch import execute_run
+    from hispo_pl.resume import RunDirLock
+    from hispo_pl.rundir import RunDir
+
+    run = RunDir(tmp_path / "run")
+    names = ["decisions.jsonl", "run.lock", "fit.log", "search/task_01_low.npz"]
+    victims = [_link_to_victim(run.path / n, tmp_path / f"victim{i}") for i, n in enumerate(names)]
+    run.append_decisions([{"task": 0}])
+    with RunDirLock(run):
+        pass
+    execute_run(["-c", "print('hello')"], str(run.fit_log), str(run.results_file))
+    run.write_search(0, "low", losses=np.zeros(2))
+    assert all(v.read_text() == "victim\n" for v in victims)
+    assert "hello" in run.fit_log.read_text() and run.read_decisions() == [{"task": 0}]
+    assert not any((run.path / n).is_symlink() for n in names)
+    assert run.read_searches()[(0, "low")]["losses"].tolist() == [0.0, 0.0]
+
+
+def test_render_out_replaces_a_link(tmp_path):
+    victim = _link_to_victim(tmp_path / "m.png", tmp_path / "victim")
+    assert main(["render", "pointmaze-umaze", "--out", str(tmp_path / "m.png")]) == 0
+    assert victim.read_text() == "victim\n" and not (tmp_path / "m.png").is_symlink()
+    assert (tmp_path / "m.png").read_bytes()[:4] == b"\x89PNG"

@@ -156,7 +156,7 @@ def branch_run(
             holds a run, or a decision of those tasks would differ at ``eps``."""
     import torch
 
-    from ..io import atomic_save
+    from ..io import atomic_save, copy_files
     from ..modules.hbc import read_checkpoint
 
     src, out = RunDir(source), RunDir(target)
@@ -180,7 +180,7 @@ def branch_run(
             search = src.search_file(i, subspace)  # the search's candidates, for the notebook
             if search.is_file():
                 out.search_file(i, subspace).parent.mkdir(parents=True, exist_ok=True)
-                out.search_file(i, subspace).write_bytes(search.read_bytes())
+                copy_files([(search, out.search_file(i, subspace))])
     out.decisions_file.unlink(missing_ok=True)
     out.append_decisions([_with_eps(d, eps) for d in decisions])
     branched = {

@@ -129,7 +129,7 @@ def _grid_main(parser, args, extra: list[str]) -> int:
 
 def _rebuild_pages(pages: Sequence[str]) -> None:
     for page in pages:
-        Path(page).write_text(embed_reports(Path(page)))
+        atomic_write_text(page, embed_reports(Path(page)))
         print(f"[benchmark] rebuilt the reports embedded in {page}")
 
 

@@ -14,12 +14,14 @@ the budget :func:`choose_budget` picks from them. ``embed_reports`` rebuilds a p
 from __future__ import annotations
 
 import csv
+import io
 import json
 import statistics
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..io import atomic_write_text, write_figure
 from ..rundir import RunDir
 
 CURVES_FILE = (
@@ -194,13 +196,14 @@ def write_curves_report(folder: Path) -> str:
     study = CurveStudy.read(folder)
     curves = load_curves(folder, study)
     text = curves_markdown(study, curves)
-    (folder / "curves.md").write_text(text)
-    with (folder / "curves.csv").open("w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(["setting", "task", "seed", "step", "success", "episode_length"])
-        for setting, task, seed, point in _points(folder, study):
-            row = [point["step"], point["success"], point.get("episode_length")]
-            writer.writerow([setting, task, seed, *row])
+    atomic_write_text(folder / "curves.md", text)
+    table = io.StringIO(newline="")
+    writer = csv.writer(table)
+    writer.writerow(["setting", "task", "seed", "step", "success", "episode_length"])
+    for setting, task, seed, point in _points(folder, study):
+        row = [point["step"], point["success"], point.get("episode_length")]
+        writer.writerow([setting, task, seed, *row])
+    atomic_write_text(folder / "curves.csv", table.getvalue())
     if curves:
-        curves_figure(study, curves).savefig(folder / "curves.png", dpi=110)
+        write_figure(curves_figure(study, curves), folder / "curves.png", dpi=110)
     return text

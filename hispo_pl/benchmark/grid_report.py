@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import atomic_write_text
+from ..io import atomic_write_text, write_figure
 from ..metrics import METRIC, METRICS
 from ..rundir import RunDir
 from . import paper
@@ -455,7 +455,7 @@ def plot_iqm_vs_memory(rows: Sequence[AggregateRow], path: Path, title: str) -> 
         from ..figures import iqm_vs_memory_figure
     except ImportError:
         return False
-    iqm_vs_memory_figure(rows, title).savefig(path, dpi=150, bbox_inches="tight")
+    write_figure(iqm_vs_memory_figure(rows, title), path, dpi=150, bbox_inches="tight")
     return True
 
 

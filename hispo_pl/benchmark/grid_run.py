@@ -5,12 +5,13 @@ new can start. The plan itself (:mod:`.grid`) is pure."""
 from __future__ import annotations
 
 import json
-import shutil
+import os
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
 
+from ..io import atomic_write_text, copy_files, real_folder, refuse_linked
 from ..rundir import RunDir
 from .derive import derivable_run, derive_run, keep_last_siblings
 from .grid import Cell, Grid, cell_run, committed_reader, describe, plan_cells
@@ -19,12 +20,18 @@ from .plan import PLAN_FILE, PlannedRun, warn_provenance
 
 def export_cell(run_dir: Path, cell: Cell, root: Path, derived_from: Cell | None = None) -> Path:
     """Copy a finished run's small files to the cell's committed place (and the stream's
-    ``benchmark.json`` for its report title); a derived cell's ``run.json`` names its source."""
+    ``benchmark.json`` for its report title); a derived cell's ``run.json`` names its source.
+    A link among the files is refused before anything is copied; a link under ``root`` where
+    a file or folder goes is replaced, never written through.
+
+    Raises:
+        LinkedFileError: a file to copy is a symbolic link."""
     target = cell.result_dir(root)
-    target.mkdir(parents=True, exist_ok=True)
-    for name in RunDir.EXPORTED:
-        if (Path(run_dir) / name).exists():
-            shutil.copyfile(Path(run_dir) / name, target / name)
+    names = [n for n in RunDir.EXPORTED if os.path.lexists(Path(run_dir) / n)]
+    pairs = [(Path(run_dir) / name, target / name) for name in names]
+    refuse_linked(src for src, _ in pairs)
+    real_folder(target, root)
+    copy_files(pairs)
     if derived_from is not None:
         meta = RunDir(target).read_run_record()
         meta.update(method=cell.label, derived_from=derived_from.name)
@@ -33,7 +40,7 @@ def export_cell(run_dir: Path, cell: Cell, root: Path, derived_from: Cell | None
         warn_provenance(RunDir(target).read_run_record(), f"exporting {cell.name}")
     plan_file = Path(root) / cell.stream / PLAN_FILE
     if not plan_file.exists():
-        plan_file.write_text(json.dumps({"stream": cell.stream}, indent=1))
+        atomic_write_text(plan_file, json.dumps({"stream": cell.stream}, indent=1))
     return target
 
 

@@ -17,7 +17,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..io import atomic_write_text
 from ..rundir import RunDir
+from .markdown import cell, code_cell
 
 # the streams' reference runs (and the grid's reports over them); every other folder of
 # docs/results is a study
@@ -69,7 +71,8 @@ def git_commit_of(path: Path) -> str | None:
 def fit_command(argv: list[str]) -> str:
     """A run's recorded ``python -m hispo_pl.cli ...`` arguments as the ``hispo-pl`` command a
     checkout runs: config paths from ``configs/`` on, the rest as recorded."""
-    args = argv[2:] if argv[:2] == ["-m", "hispo_pl.cli"] else argv
+    args = [str(a) for a in argv]
+    args = args[2:] if args[:2] == ["-m", "hispo_pl.cli"] else args
     shown = [a[a.index("configs/") :] if "/configs/" in a else a for a in args]
     return "hispo-pl " + " ".join(shown)
 
@@ -78,7 +81,9 @@ def machine_text(machine: dict | None) -> str:
     """``platform, N CPUs, torch V`` from a run's recorded machine."""
     if not machine:
         return "not recorded"
-    parts = [machine.get("platform"), f"{machine['cpus']} CPUs" if machine.get("cpus") else None]
+    platform = machine.get("platform")
+    parts = [str(platform) if platform else None]
+    parts.append(f"{machine['cpus']} CPUs" if machine.get("cpus") else None)
     parts.append(f"torch {machine['torch']}" if machine.get("torch") else None)
     return ", ".join(p for p in parts if p)
 
@@ -91,18 +96,22 @@ def run_provenance(
     run = RunDir(run_dir)
     record = run.read_run_record()
     if record.get("commit"):
-        commit = f"{record['commit'][:7]}{'+dirty' if record['commit'].endswith('+dirty') else ''}"
+        made = str(record["commit"])
+        commit = f"{made[:7]}{'+dirty' if made.endswith('+dirty') else ''}"
     else:
         committed = commit_of(run.results_file)
         commit = f"{committed} (committed)" if committed else "not recorded"
     name = run_dir.relative_to(folder).as_posix()
-    if record.get("argv"):
-        command = f"`{fit_command(record['argv'])}`"
+    if record.get("argv") and isinstance(record["argv"], list):
+        command = code_cell(fit_command(record["argv"]))
     elif run.config_file.exists():
-        command = f"not recorded; its settings: `{name}/{run.config_file.name}`"
+        command = f"not recorded; its settings: {code_cell(f'{name}/{run.config_file.name}')}"
     else:
         command = "not recorded"
-    return Provenance(name, commit, command, machine_text(record.get("machine")))
+    machine = record.get("machine")
+    return Provenance(
+        name, commit, command, machine_text(machine if isinstance(machine, dict) else None)
+    )
 
 
 def folder_provenance(folder: Path, commit_of: Callable[[Path], str | None]) -> list[Provenance]:
@@ -139,7 +148,9 @@ def manifest_markdown(folder: Path, commit_of: Callable[[Path], str | None]) -> 
         "| run | commit | machine | command |",
         "|---|---|---|---|",
     ]
-    lines += [f"| {r.run} | {r.commit} | {r.machine} | {r.command} |" for r in rows]
+    lines += [
+        f"| {cell(r.run)} | {cell(r.commit)} | {cell(r.machine)} | {r.command} |" for r in rows
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -148,7 +159,7 @@ def write_manifests(root: Path, commit_of: Callable[[Path], str | None] = git_co
     for name in REFERENCE_FOLDERS:
         folder = Path(root) / name
         if folder.is_dir():
-            (folder / MANIFEST).write_text(manifest_markdown(folder, commit_of))
+            atomic_write_text(folder / MANIFEST, manifest_markdown(folder, commit_of))
 
 
 if __name__ == "__main__":

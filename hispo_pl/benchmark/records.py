@@ -3,11 +3,13 @@ of the same seed, mean ± std over seeds per method."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import RunDirError
+from ..io import copy_files, real_folder, refuse_linked
 from ..metrics import METRICS, continual_metrics, mean_std
 from ..results import Decision, StreamResults, fwt_reference
 from ..rundir import RunDir
@@ -95,19 +97,26 @@ def load_records(out: Path) -> tuple[list[RunRecord], list[str]]:
 def export_runs(out: Path, dest: Path) -> list[Path]:
     """Copy the small files of every finished run under ``out`` (results, decisions, config,
     run record; never checkpoints or event files) to ``dest/<method>/seed<S>/``, the layout
-    that is committed under ``docs/results/<stream>/`` and read back by ``--report-only``."""
-    written = []
-    if (Path(out) / PLAN_FILE).exists():  # the stream's name, for the report's title
-        Path(dest).mkdir(parents=True, exist_ok=True)
-        (Path(dest) / PLAN_FILE).write_bytes((Path(out) / PLAN_FILE).read_bytes())
-        written.append(Path(dest) / PLAN_FILE)
-    for seed_dir in finished_run_dirs(out):
-        target = Path(dest) / seed_dir.parent.name / seed_dir.name
-        target.mkdir(parents=True, exist_ok=True)
+    that is committed under ``docs/results/<stream>/`` and read back by ``--report-only``.
+    A link among them is refused before anything is copied; a link in ``dest`` is replaced.
+
+    Raises:
+        LinkedFileError: a file to copy is a symbolic link."""
+    out, dest = Path(out), Path(dest)
+    pairs = []
+    if os.path.lexists(out / PLAN_FILE):  # the report's title
+        pairs.append((out / PLAN_FILE, dest / PLAN_FILE))
+    runs = {d: dest / d.parent.name / d.name for d in finished_run_dirs(out)}
+    for seed_dir, target in runs.items():
         for name in RunDir.EXPORTED:
-            if (seed_dir / name).exists():
-                (target / name).write_bytes((seed_dir / name).read_bytes())
-                written.append(target / name)
+            if os.path.lexists(seed_dir / name):
+                pairs.append((seed_dir / name, target / name))
+    refuse_linked(src for src, _ in pairs)
+    dest.mkdir(parents=True, exist_ok=True)
+    for target in runs.values():
+        real_folder(target, dest)
+    written = copy_files(pairs)
+    for seed_dir, target in runs.items():
         if RunDir(target).run_record_file.exists():
             warn_provenance(RunDir(target).read_run_record(), f"exporting {seed_dir}")
     return written

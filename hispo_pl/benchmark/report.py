@@ -10,11 +10,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RunDirError
-from ..io import atomic_write_text
+from ..io import atomic_write_text, copy_files, write_figure
 from ..rundir import RunDir
 from .claims import CLAIMS_FILE
 from .curves import CURVES_FILE
 from .grid import GRID_FILE
+from .markdown import cell
 from .plan import PLAN_FILE, RUNS_DIR
 from .records import MethodRow, RunRecord, aggregate, load_records
 from .tables import (
@@ -41,7 +42,7 @@ def plot_perf_vs_memory(rows: Sequence[MethodRow], path: Path, stream: str = "")
         )
         return False
     fig = perf_vs_memory_figure(rows, stream)
-    fig.savefig(path, dpi=150, bbox_inches="tight")
+    write_figure(fig, path, dpi=150, bbox_inches="tight")
     return True
 
 
@@ -65,7 +66,7 @@ def plot_success_matrices(records: Sequence[RunRecord], out: Path) -> list[Path]
         fig = success_matrix_figure(mean.tolist(), tasks[method])
         fig.axes[0].set_title(f"{method}: R, mean of {len(matrices)} seed(s)", fontsize=9)
         path = out / f"success_{method}.png"
-        fig.savefig(path, dpi=110, bbox_inches="tight")
+        write_figure(fig, path, dpi=110, bbox_inches="tight")
         written.append(path)
     return written
 
@@ -98,10 +99,10 @@ def unfinished_markdown(runs: Sequence[tuple[str, int, str]], unreadable: Sequen
     lines = []
     if runs:
         lines += ["", "## Runs without results", "", "| method | seed | status |", "|---|---:|---|"]
-        lines += [f"| {method} | {seed} | {status} |" for method, seed, status in runs]
+        lines += [f"| {cell(method)} | {seed} | {cell(status)} |" for method, seed, status in runs]
     if unreadable:
         lines += ["", "## Runs that could not be read", ""]
-        lines += [f"- {line}" for line in unreadable]
+        lines += [f"- {cell(line)}" for line in unreadable]
     return "\n".join(lines) + "\n" if lines else ""
 
 
@@ -226,11 +227,14 @@ def _stream_report_text(target: Path) -> str:
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
-        for name in RunDir.EXPORTED:
-            for src in target.parent.glob(f"*/seed*/{name}"):
-                dst = Path(tmp) / src.relative_to(target.parent)
-                dst.parent.mkdir(parents=True, exist_ok=True)
-                dst.write_bytes(src.read_bytes())
+        pairs = [
+            (src, Path(tmp) / src.relative_to(target.parent))
+            for name in RunDir.EXPORTED
+            for src in target.parent.glob(f"*/seed*/{name}")
+        ]
+        for _, dst in pairs:
+            dst.parent.mkdir(parents=True, exist_ok=True)
+        copy_files(pairs)
         stream = (target.parent / PLAN_FILE).exists() and json.loads(
             (target.parent / PLAN_FILE).read_text()
         ).get("stream")
