@@ -30,6 +30,7 @@ PRUNING_CLASS = "SubspacePruning"
 PRUNING = f"hispo_pl.callbacks.{PRUNING_CLASS}"
 # a pruning knob's flag -> the subspace whose tolerance it sets
 EPS_FLAGS = {"--eps_high": "high", "--eps_low": "low"}
+PER_TASK = ("rows", "datasets", "mem_per_task")  # progress lists of one entry per finished task
 _FINGERPRINT_EPS = re.compile(
     rf"trainer\.callbacks\[{PRUNING_CLASS}[^\]]*\]\.init_args\.eps_(high|low)"
 )
@@ -184,11 +185,10 @@ def branch_run(
     out.decisions_file.unlink(missing_ok=True)
     out.append_decisions([_with_eps(d, eps) for d in decisions])
     branched = {
-        **progress,
-        "rows": rows[:tasks],
+        **{k: v[:tasks] for k, v in progress.items() if k in PER_TASK and v is not None},
+        **{k: v for k, v in progress.items() if k not in PER_TASK},
         "wall_time_s": [0.0] * tasks,
         "phase_time_s": [{"training": 0.0}] * tasks,
-        "datasets": (progress.get("datasets") or [])[:tasks],
     }
     if "fingerprint" in progress:
         branched["fingerprint"] = branched_fingerprint(progress["fingerprint"], eps)

@@ -227,7 +227,7 @@ def derive_run(source: str | Path, target: str | Path, record: dict | None = Non
     stream = [parse_task(t) for t in results.stream]
     out.path.mkdir(parents=True, exist_ok=True)
     R = [list(row) for row in results.R]
-    wall, phases, module = [], [], None
+    wall, phases, memory, module = [], [], [], None
     threads = torch.get_num_threads()
     if int(config.get("num_threads") or 0) > 0:
         torch.set_num_threads(int(config["num_threads"]))  # as the run evaluated
@@ -241,6 +241,8 @@ def derive_run(source: str | Path, target: str | Path, record: dict | None = Non
                 R[i][j] = evaluation.evaluate_task(stream[j], module, j).success
             seconds = module.task_record.seconds.get("evaluation", 0.0)
             phases.append({"training": 0.0, "evaluation": seconds})
+            reference = module_bytes(module.reference_model())
+            memory.append(memory_ratio(module_bytes(module), reference))
             wall.append(time.perf_counter() - start)
             if src.task_config(i).exists():
                 text = keep_last_config_text(src.task_config(i).read_text(), out.path)
@@ -260,9 +262,12 @@ def derive_run(source: str | Path, target: str | Path, record: dict | None = Non
         metrics=metrics,
         stored_bytes=stored,
         table=results_row_table(matrix),
+        mem_per_task=memory if results.mem_per_task is not None else None,
     )
     if progress:
         progress = {**progress, "rows": R, "wall_time_s": wall, "phase_time_s": phases}
+        if "mem_per_task" in progress:  # measured as the source's run measures it
+            progress["mem_per_task"] = memory
         if "fingerprint" in progress:  # flat settings: only keep differs
             progress["fingerprint"] = {**progress["fingerprint"], "model.init_args.keep": "last"}
         out.write_progress(progress)

@@ -22,6 +22,7 @@ from .tables import (
     before_training_markdown,
     critic_markdown,
     decisions_markdown,
+    memory_markdown,
     runtime_csv,
     table_csv,
     table_markdown,
@@ -109,7 +110,8 @@ def unfinished_markdown(runs: Sequence[tuple[str, int, str]], unreadable: Sequen
 def write_report(out: Path, stream: str | None = None, figures: bool = True) -> list[Path]:
     """Rebuild ``table.md``, ``table.csv``, ``runtime.csv``, ``perf_vs_memory.png``, the
     success heatmaps and, where runs made decisions, ``decisions.md`` (loss rules) and
-    ``critic.md`` (CSP's critic) in ``out`` from every finished run under ``out/runs``
+    ``critic.md`` (CSP's critic), and where runs measured it ``memory.md`` (MEM after each
+    task) in ``out`` from every finished run under ``out/runs``
     (``figures=False``: the text files only). Returns the files written.
 
     Raises:
@@ -143,6 +145,7 @@ def write_report(out: Path, stream: str | None = None, figures: bool = True) -> 
         ("before_training.md", before_training_markdown(records, stream)),
         ("decisions.md", decisions_markdown(records, stream)),
         ("critic.md", critic_markdown(records, stream)),
+        ("memory.md", memory_markdown(records, stream)),
     ):
         if text:
             atomic_write_text(out / name, text)
