@@ -278,7 +278,7 @@ def test_grid_report_embeds_rebuild_from_committed_files(tmp_path, monkeypatch):
     monkeypatch.undo()
     aggregate = (root / "grid-g/aggregate.md").read_text()
     assert "| scn | 2 of 2 |" in aggregate and "| hispo | 2 of 2 |" in aggregate
-    # the paper's PER on the same two streams (its Table 6: 98.0 and 99.8), then its Table 1
+    # the paper's PER on the same two streams (its Table 7: 98.0 and 99.8), then its Table 1
     (hispo,) = [line for line in aggregate.splitlines() if line.startswith("| hispo |")]
     assert hispo.endswith("| 98.9 | 87.7 | 0.0 | 2.0 |")
     doc = tmp_path / "page.md"
@@ -306,9 +306,9 @@ def test_beside_paper_puts_the_papers_figure_next_to_ours(tmp_path):
     shutil.copytree(ROOT / "docs/results/pointmaze-1/frz", tmp_path / "pointmaze-1/frz")
     text = gp.beside_paper_markdown(gp.Committed(tmp_path))
     frz = next(line for line in text.splitlines() if line.startswith("| frz | 3 |"))
-    assert frz.startswith("| frz | 3 | 34.2 ± 2.6 | 37.8 ± 0.8 |")  # the paper's FZ, Table 6
+    assert frz.startswith("| frz | 3 | 34.2 ± 2.6 | 37.8 ± 0.8 |")  # the paper's FZ, Table 7
     assert "| pnn |  | 99.4 ± 0.8 |  | 0.0 ± 0.0 |" in text  # not run here: an empty cell
-    assert "| videogame-2 |" not in text and "### videogame-2 (the paper's Table 8)" in text
+    assert "| videogame-2 |" not in text and "### videogame-2 (the paper's Table 9)" in text
 
 
 def test_summary_bolds_the_best_and_counts_seeds_other_than_three(tmp_path):

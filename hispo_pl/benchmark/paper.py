@@ -1,4 +1,4 @@
-"""The paper's own figures, to stand beside ours: its per-stream tables (Tables 6, 7 and 8,
+"""The paper's own figures, to stand beside ours: its per-stream tables (Tables 7, 8 and 9,
 three seeds each), its aggregate over all six streams (Table 1) and its AntMaze ablation
 (Table 2), as printed. Metrics ×100 like its tables (MEM as a ratio); each value is
 ``(mean, std)``. Method names are hispo-pl's (the paper's FZ is ``frz``)."""
