@@ -16,6 +16,7 @@ HELP = "hispo-pl fit --help lists the flags"
 _UNRECOGNIZED = re.compile(r"unrecognized arguments: (--[^\s=]+)")
 _PARSER_KEY = re.compile(r'Parser key "([^"]+)"')
 _NOT_SUBCLASS = re.compile(r"Import path (\S+) does not correspond to a subclass of (\w+)")
+_NO_MODULE = re.compile(r"class_path '([^']+)':\s+No module named '([^']+)'")
 _NESTED = re.compile(r"unrecognized arguments: --([^\s=]+)|Option '([^']+)' is not accepted")
 
 
@@ -53,6 +54,13 @@ def parse_error_line(message: str, known: Iterable[str], help_hint: str = HELP) 
         return (
             f"{wrong_class.group(1)} is not a hispo-pl method: a method subclasses "
             "hispo_pl.modules.GoalConditionedBC (docs/extending.md, What to subclass)"
+        )
+    no_module = _NO_MODULE.search(message)
+    if flag is None and no_module:
+        return (
+            f"{no_module.group(1)}: no module {no_module.group(2)} on the import path; hispo-pl "
+            "imports a method from an installed package or PYTHONPATH, never from the working "
+            "folder by itself (docs/extending.md)"
         )
     if flag is None:
         return " ".join(line.strip() for line in message.splitlines() if line.strip())

@@ -190,3 +190,29 @@ def test_benchmark_dry_run_validates_the_overrides(tmp_path, capsys):
     assert "model.init_args.backbone.dropout = 2" in capsys.readouterr().err
     assert benchmark_main([*common, "--dry-run", "--", "--trainer.max_steps", "5"]) == 0
     assert not list(tmp_path.iterdir())
+
+
+# --- 9. the benchmark's fits import no code from the working folder --------------------------
+
+
+def test_a_fit_the_benchmark_launches_never_imports_from_the_working_folder(tmp_path, monkeypatch):
+    """``python -m`` puts the working folder on the import path; a config naming a module
+    there must not run it, unless the user puts the folder there (PYTHONPATH=.)."""
+    from hispo_pl.benchmark.launch import execute_run
+    from hispo_pl.benchmark.plan import plan_run
+
+    marker = tmp_path / "ran"
+    (tmp_path / "evil.py").write_text(f"open({str(marker)!r}, 'w').close()\nclass Thing: pass\n")
+    method = tmp_path / "evil.yaml"
+    method.write_text("model:\n  class_path: evil.Thing\n")
+    monkeypatch.chdir(tmp_path)
+    stream = ROOT / "configs" / "streams" / "pointmaze-1.yaml"
+    run = plan_run(stream, method, "evil", 0, tmp_path / "out")
+    outcome = execute_run(run.argv, str(run.log_path), str(run.results_path))
+    log = run.log_path.read_text()
+    assert outcome["returncode"] == 2, log
+    assert "evil.Thing: no module evil on the import path" in log and "Traceback" not in log
+    assert not marker.exists(), "a module of the working folder was imported"
+    # asked for, the folder is searched: the same launch imports it (and refuses the class)
+    execute_run(run.argv, str(run.log_path), str(run.results_path), {"PYTHONPATH": "."})
+    assert marker.exists()
