@@ -51,7 +51,7 @@ def _task_index(label: str) -> int:
     return int(label) - 1
 
 
-def _read_object(path: Path, holds: str) -> dict:
+def read_json_object(path: Path, holds: str) -> dict:
     """The JSON object in ``path``, which ``holds`` what is named (for the message).
 
     Raises:
@@ -94,7 +94,7 @@ def read_results_file(path: Path) -> dict:
 
     Raises:
         RunDirError: the file is not JSON, not an object, or its R does not fit its stream."""
-    results = _read_object(path, "a finished stream's results")
+    results = read_json_object(path, "a finished stream's results")
     problem = results_problem(results)
     if problem is not None:
         raise RunDirError(f"{path} cannot be tabulated: {problem}")
@@ -214,7 +214,7 @@ class RunDir:
         if not self.progress_file.exists():
             return None
         holds = "a stream's progress; move the run directory away to start over"
-        progress = _read_object(self.progress_file, holds)
+        progress = read_json_object(self.progress_file, holds)
         _require_lists(self.progress_file, progress, ("stream", "rows"), holds)
         return progress
 
@@ -314,7 +314,7 @@ class RunDir:
         return out
 
     def read_result(self) -> dict:
-        return _read_object(self.result_file, "a single-task fit's evaluation")
+        return read_json_object(self.result_file, "a single-task fit's evaluation")
 
     def task_result(self) -> TaskResult:
         """``result.json`` as :class:`~hispo_pl.results.TaskResult`."""
@@ -329,7 +329,7 @@ class RunDir:
         """The benchmark's ``run.json`` (empty for a run it did not launch)."""
         if not self.run_record_file.exists():
             return {}
-        return _read_object(self.run_record_file, "the benchmark's record of the run")
+        return read_json_object(self.run_record_file, "the benchmark's record of the run")
 
     def write_run_record(self, record: dict) -> None:
         atomic_write_text(self.run_record_file, json.dumps(record, indent=1))

@@ -378,6 +378,32 @@ def test_a_second_stream_into_one_out_is_refused_before_anything_is_written(tmp_
     assert (run / "results.json").exists()
 
 
+def test_an_export_over_another_streams_runs_is_refused_before_anything_is_written(
+    tmp_path, capsys
+):
+    dest, configs = tmp_path / "dest", str(Path(__file__).parents[1] / "configs")
+    first = tmp_path / "pm1"
+    _finished_run(first, "scn", 0, PM1_TASKS)
+    (first / "benchmark.json").write_text(json.dumps({"stream": "pointmaze-1"}))
+    assert main(["benchmark", "--report-only", "--out", str(first), "--export", str(dest)]) == 0
+    second = tmp_path / "pm2"
+    run = _finished_run(second, "scn", 0, PM1_TASKS[:3])
+    (run / "run.json").write_text(json.dumps({"method": "scn", "seed": 0, "stream": "pm2"}))
+    (second / "benchmark.json").write_text(json.dumps({"stream": "pm2"}))
+    capsys.readouterr()
+    before = {p: p.read_bytes() for p in dest.rglob("*") if p.is_file()}
+    assert main(["benchmark", "--report-only", "--out", str(second), "--export", str(dest)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "holds runs of another stream: scn/seed0 (pointmaze-1), benchmark.json" in err
+    assert "its own --export" in err and len(err.splitlines()) == 1
+    # a benchmark that would train first is refused before it starts
+    argv = ["benchmark", "--stream", "pointmaze-2", "--methods", "scn", "--seeds", "1"]
+    new = tmp_path / "new"
+    assert main([*argv, "--out", str(new), "--export", str(dest), "--config-dir", configs]) == 2
+    assert "scn/seed0 (pointmaze-1)" in capsys.readouterr().err and not new.exists()
+    assert {p: p.read_bytes() for p in dest.rglob("*") if p.is_file()} == before
+
+
 def test_results_that_do_not_fit_their_stream_are_listed_not_tabulated(tmp_path, capsys):
     _finished_run(tmp_path, "scn", 0, PM1_TASKS)
     _finished_run(tmp_path, "ftn", 0, PM1_TASKS, R=[[1.0]])  # 1x1 R: PER 100 if tabulated

@@ -16,7 +16,7 @@ from . import plan
 from .configs import datasets_needed, prepare_datasets
 from .launch import Reporter, run_env, run_local, run_ray
 from .parser import build_parser, cpu_count
-from .records import export_runs
+from .records import export_runs, refuse_foreign_export
 from .report import embed_reports, write_report
 
 
@@ -210,6 +210,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{out} holds runs of another stream: {', '.join(foreign)}. Run directories are "
             f"named by method and seed, so give stream {stream_name} its own --out"
         )
+    if args.export:  # refused now rather than after training
+        dest = Path(args.export)
+        refuse_foreign_export(plan.foreign_export(runs, stream_name, dest), dest)
     out.mkdir(parents=True, exist_ok=True)
     settings = {
         "stream": stream_name,

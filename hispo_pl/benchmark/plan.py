@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..rundir import RunDir
+from ..rundir import RunDir, read_json_object
 from .configs import configured_max_steps, configured_value
 
 PLAN_FILE = "benchmark.json"
@@ -240,6 +240,32 @@ def planned_tasks(run: PlannedRun) -> list[str]:
     return [
         str(task) for task in parse_stream(configured_value(run.configs, run.argv, "data.stream"))
     ]
+
+
+def planned_stream(folder: Path) -> str | None:
+    """The stream a benchmark's folder (its ``--out``, or an ``--export`` of it) holds, as its
+    ``benchmark.json`` names it; None without the file or the name.
+
+    Raises:
+        RunDirError: the file is not a JSON object."""
+    path = Path(folder) / PLAN_FILE
+    if not path.exists():
+        return None
+    stream = read_json_object(path, "the benchmark's stream; remove it to write it anew").get(
+        "stream"
+    )
+    return str(stream) if stream else None
+
+
+def foreign_export(runs: Sequence[PlannedRun], stream: str, dest: Path) -> list[str]:
+    """What exporting ``runs`` of ``stream`` to ``dest`` would overwrite of another stream:
+    its runs of the same method and seed (:func:`foreign_runs`) and its ``benchmark.json``."""
+    from dataclasses import replace
+
+    there = [replace(r, run_dir=Path(dest) / r.method / f"seed{r.seed}") for r in runs]
+    found = foreign_runs(there, stream)
+    old = planned_stream(dest)
+    return found + ([f"{PLAN_FILE} ({old})"] if old not in (None, stream) else [])
 
 
 def foreign_runs(runs: Sequence[PlannedRun], stream: str) -> list[str]:

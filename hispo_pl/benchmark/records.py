@@ -13,7 +13,7 @@ from ..io import copy_files, real_folder, refuse_linked
 from ..metrics import METRICS, continual_metrics, mean_std
 from ..results import Decision, StreamResults, fwt_reference
 from ..rundir import RunDir
-from .plan import PLAN_FILE, RUNS_DIR, warn_provenance
+from .plan import PLAN_FILE, RUNS_DIR, planned_stream, warn_provenance
 
 
 @dataclass
@@ -94,6 +94,52 @@ def load_records(out: Path) -> tuple[list[RunRecord], list[str]]:
     return sorted(records, key=lambda r: (r.method, r.seed)), unreadable
 
 
+def _stream_of(run: RunDir) -> tuple[str | None, tuple[str, ...] | None]:
+    """A finished run's stream: the name its ``run.json`` records and the tasks of its
+    ``results.json``, each None where the file does not say."""
+    try:
+        name = run.read_run_record().get("stream")
+    except RunDirError:
+        name = None
+    try:
+        tasks = tuple(run.read_results()["stream"])
+    except RunDirError:
+        tasks = None
+    return name, tasks
+
+
+def foreign_exports(out: Path, dest: Path) -> list[str]:
+    """What exporting ``out`` to ``dest`` would overwrite of another stream, described for a
+    message: ``dest``'s runs of the same method and seed whose stream differs (by name or
+    tasks), and its ``benchmark.json`` when it names another stream than ``out``'s."""
+    found = []
+    for seed_dir in finished_run_dirs(out):
+        there = RunDir(Path(dest) / seed_dir.parent.name / seed_dir.name)
+        if not there.has_results():
+            continue
+        ours, theirs = _stream_of(RunDir(seed_dir)), _stream_of(there)
+        pairs = zip(ours, theirs, strict=True)
+        if any(a is not None and b is not None and a != b for a, b in pairs):
+            name, tasks = theirs
+            found.append(f"{seed_dir.parent.name}/{seed_dir.name} ({name or ' -> '.join(tasks)})")
+    new, old = planned_stream(out), planned_stream(dest)
+    if new is not None and old is not None and new != old:
+        found.append(f"{PLAN_FILE} ({old})")
+    return found
+
+
+def refuse_foreign_export(found: Sequence[str], dest: Path) -> None:
+    """Refuse an export that would overwrite ``found`` (:func:`foreign_exports`).
+
+    Raises:
+        RunDirError: naming them and what to do."""
+    if found:
+        raise RunDirError(
+            f"{dest} holds runs of another stream: {', '.join(found)}. Exported runs are named "
+            "by method and seed, so give this stream its own --export"
+        )
+
+
 def export_runs(out: Path, dest: Path) -> list[Path]:
     """Copy the small files of every finished run under ``out`` (results, decisions, config,
     run record; never checkpoints or event files) to ``dest/<method>/seed<S>/``, the layout
@@ -101,8 +147,11 @@ def export_runs(out: Path, dest: Path) -> list[Path]:
     A link among them is refused before anything is copied; a link in ``dest`` is replaced.
 
     Raises:
-        LinkedFileError: a file to copy is a symbolic link."""
+        LinkedFileError: a file to copy is a symbolic link.
+        RunDirError: ``dest`` holds runs of another stream (:func:`foreign_exports`); nothing
+            is copied."""
     out, dest = Path(out), Path(dest)
+    refuse_foreign_export(foreign_exports(out, dest), dest)
     pairs = []
     if os.path.lexists(out / PLAN_FILE):  # the report's title
         pairs.append((out / PLAN_FILE, dest / PLAN_FILE))
