@@ -6,6 +6,7 @@ fit from its arguments: one task (``trainer.fit``) or a stream (the
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -20,7 +21,7 @@ from .data.datamodule import TaskDataModule
 from .errors import ConfigError, Interrupted, UserError
 from .io import replace_link
 from .modules.hbc import GoalConditionedBC
-from .presets import apply_preset
+from .presets import apply_preset, given_keys, kept_note
 from .run_checks import METHOD_KNOBS, apply_method_knobs, validate_config
 from .rundir import RunDir
 from .tasks import unseen_variant_tasks, unseen_variants_message
@@ -65,7 +66,8 @@ class HispoCLI(LightningCLI):
             type=str | None,
             default=None,
             help="paper: the paper's hyperparameters, inputs and HiSPO rules over the configs' "
-            "(docs/method.md lists both); the budget stays the stream config's",
+            "(docs/method.md lists both); the budget stays the stream config's, and a dotted "
+            "flag given here wins over the preset",
         )
         for flag, (text, _) in METHOD_KNOBS.items():
             kind = float if flag.startswith("eps") else int
@@ -88,6 +90,7 @@ class HispoCLI(LightningCLI):
             ConfigError: what did not parse."""
         from argparse import ArgumentError
 
+        self.command_line = list(args) if isinstance(args, list | tuple) else sys.argv[1:]
         try:
             super().parse_arguments(parser, args)
         except ArgumentError as err:
@@ -135,7 +138,10 @@ class HispoCLI(LightningCLI):
 
     def before_instantiate_classes(self) -> None:
         config = self.config.get(self.subcommand, self.config)
-        apply_preset(config, config.get("preset"))
+        given = given_keys(getattr(self, "command_line", []))
+        kept = apply_preset(config, config.get("preset"), given)
+        if kept:
+            print(kept_note(config["preset"], kept))
         apply_method_knobs(config)
         validate_config(config.as_dict())
         set_num_threads(config.get("num_threads", 0))

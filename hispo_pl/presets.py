@@ -2,11 +2,14 @@
 
 ``--preset paper`` runs any method as the paper specifies it (its hyperparameter table and
 method text), instead of the house defaults the method configs carry; the budget (steps per
-task) stays the stream config's. ``docs/method.md`` lists both side by side. A preset is
+task) stays the stream config's. It replaces what config files say; a dotted flag given on the
+command line wins over it. ``docs/method.md`` lists both side by side. A preset is
 applied before the run's fingerprint is taken, so a resumed run keeps it.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 from .errors import ConfigError
 from .tasks import parse_stream, parse_task
@@ -59,25 +62,81 @@ def _set(config, key: str, value) -> None:
     node[last] = value
 
 
-def apply_preset(config, name: str | None) -> None:
-    """Write preset ``name``'s settings into ``config`` (a parsed ``fit`` configuration)."""
-    if name is None:
-        return
+def given_keys(args: Sequence[str]) -> set[str]:
+    """The dotted keys that the flags of a ``fit`` command line set, written without
+    ``init_args`` (``--model.optim.lr`` and ``--model.init_args.optim.lr`` are one key);
+    configuration files and top-level flags (``--config``, ``--preset``) are not among them.
+
+    Example:
+        >>> sorted(given_keys(["--config", "a.yaml", "--data.batch_size", "64",
+        ...                    "--model.init_args.optim.lr=0.01", "--preset", "paper"]))
+        ['data.batch_size', 'model.optim.lr']
+    """
+    flags = (a[2:].split("=", 1)[0] for a in args if a.startswith("--"))
+    return {_short(flag) for flag in flags if "." in flag}
+
+
+def _short(key: str) -> str:
+    return key.replace(".init_args.", ".")
+
+
+def _given(key: str, given: set[str]) -> bool:
+    """Whether a flag of ``given`` sets ``key`` or a mapping that holds it."""
+    short = _short(key)
+    return any(short == g or short.startswith(g + ".") for g in given)
+
+
+def _get(config, key: str):
+    node = config
+    for part in key.split("."):
+        if not hasattr(node, "get") or node.get(part) is None:
+            return None
+        node = node[part]
+    return node
+
+
+def preset_settings(config, name: str) -> list[tuple[str, object]]:
+    """Preset ``name``'s settings of ``config`` (a parsed ``fit`` configuration) as (dotted
+    key, value), its callbacks' apart (:data:`PAPER_CALLBACKS`).
+
+    Raises:
+        ConfigError: an unknown preset."""
     if name not in PRESETS:
         raise ConfigError(f"--preset {name}: unknown preset; the presets are {', '.join(PRESETS)}")
     family = _family(config)
     model = str((config.get("model") or {}).get("class_path", "")).rsplit(".", 1)[-1]
     is_hispo = model in HISPO_CLASSES
-    for key, value in PAPER_COMMON:
-        _set(config, key, value)
     high, low = PAPER_HISPO_WIDTHS.get(family, PAPER_WIDTHS) if is_hispo else PAPER_WIDTHS
-    _set(config, "model.init_args.backbone.high_hidden", high)
-    _set(config, "model.init_args.backbone.low_hidden", low)
-    _set(config, "data.batch_size", PAPER_BATCH[family])
-    if is_hispo:
-        for key, value in PAPER_HISPO_MODEL:
+    return [
+        *PAPER_COMMON,
+        ("model.init_args.backbone.high_hidden", high),
+        ("model.init_args.backbone.low_hidden", low),
+        ("data.batch_size", PAPER_BATCH[family]),
+        *(PAPER_HISPO_MODEL if is_hispo else ()),
+    ]
+
+
+def apply_preset(config, name: str | None, given: set[str] = frozenset()) -> dict:
+    """Write preset ``name``'s settings into ``config`` (a parsed ``fit`` configuration), but
+    those of the keys the command line's flags set (``given``, :func:`given_keys`): an
+    explicit flag wins over the preset, a configuration file does not. Returns the kept keys
+    whose value differs from the preset's, as key -> (value used, the preset's value)."""
+    if name is None:
+        return {}
+    kept = {}
+    for key, value in preset_settings(config, name):
+        if not _given(key, given):
             _set(config, key, value)
+        elif _get(config, key) != value:
+            kept[key] = (_get(config, key), value)
     for callback in (config.get("trainer") or {}).get("callbacks") or []:
         settings = PAPER_CALLBACKS.get(str(callback.get("class_path", "")).rsplit(".", 1)[-1])
         for key, value in (settings or {}).items():
             callback["init_args"][key] = value
+    return kept
+
+
+def kept_note(name: str, kept: dict) -> str:
+    """The line a run prints when flags of its command line win over preset ``name``."""
+    said = ", ".join(f"{k} {v} (the preset: {p})" for k, (v, p) in kept.items())
+    return f"[hispo-pl] --preset {name}: the command line's flags are kept: {said}"

@@ -740,3 +740,145 @@ def test_render_out_replaces_a_link(tmp_path):
     assert main(["render", "pointmaze-umaze", "--out", str(tmp_path / "m.png")]) == 0
     assert victim.read_text() == "victim\n" and not (tmp_path / "m.png").is_symlink()
     assert (tmp_path / "m.png").read_bytes()[:4] == b"\x89PNG"
+
+
+# --- 12. --preset: explicit flags win, and a run without one is configured as before --------
+
+# what `fit --preset paper --eps_high 0.05 --eps_low 0.05` on PointMaze-1 with HiSPO trained
+# before explicit flags could win over the preset (the keys a preset, a knob or a method
+# config set; Lightning's own trainer defaults left out): runs started so must resume
+PAPER_HISPO_FINGERPRINT = {
+    "seed_everything": 0,
+    "trainer.callbacks[AnchorExtension].class_path": "hispo_pl.callbacks.AnchorExtension",
+    "trainer.callbacks[DirichletEvaluation].class_path": "hispo_pl.callbacks.DirichletEvaluation",
+    "trainer.callbacks[DirichletEvaluation].init_args.n_candidates": 1024,
+    "trainer.callbacks[DirichletEvaluation].init_args.n_batches": 16,
+    "trainer.callbacks[DirichletEvaluation].init_args.survivors": 32,
+    "trainer.callbacks[DirichletEvaluation].init_args.probe_samples": 256,
+    "trainer.callbacks[DirichletEvaluation].init_args.loss": "mse",
+    "trainer.callbacks[DirichletEvaluation].init_args.precision": "auto",
+    "trainer.callbacks[DirichletEvaluation].init_args.seed": 0,
+    "trainer.callbacks[DirichletEvaluation].init_args.every_n_steps": 0,
+    "trainer.callbacks[DirichletEvaluation].init_args.refine_current": False,
+    "trainer.callbacks[DirichletEvaluation].init_args.convergence_window": 0.2,
+    "trainer.callbacks[SubspacePruning].class_path": "hispo_pl.callbacks.SubspacePruning",
+    "trainer.callbacks[SubspacePruning].init_args.eps_high": 0.05,
+    "trainer.callbacks[SubspacePruning].init_args.eps_low": 0.05,
+    "trainer.callbacks[SubspacePruning].init_args.eps": None,
+    "trainer.callbacks[RolloutEvaluation].class_path": "hispo_pl.callbacks.RolloutEvaluation",
+    "trainer.callbacks[RolloutEvaluation].init_args.eval_every": 0,
+    "trainer.callbacks[RolloutEvaluation].init_args.episodes": 100,
+    "trainer.callbacks[RolloutEvaluation].init_args.seed": 0,
+    "trainer.callbacks[RolloutEvaluation].init_args.progress": False,
+    "trainer.max_steps": 6000,
+    "model.init_args.obs_dim": None,
+    "model.init_args.action_dim": None,
+    "model.init_args.goal_dim": 2,
+    "model.init_args.backbone.kind": "hbc",
+    "model.init_args.backbone.high_hidden": 64,
+    "model.init_args.backbone.low_hidden": 256,
+    "model.init_args.backbone.dropout": 0.1,
+    "model.init_args.backbone.high_log_std": None,
+    "model.init_args.backbone.low_log_std": None,
+    "model.init_args.backbone.low_obs": True,
+    "model.init_args.backbone.low_velocity": False,
+    "model.init_args.backbone.high_obs": True,
+    "model.init_args.backbone.binary_actions": 0,
+    "model.init_args.optim.lr": 0.0003,
+    "model.init_args.optim.schedule": "cosine",
+    "model.init_args.anchor_init": "random",
+    "model.init_args.cosine_weight": 0.0,
+    "model.init_args.alpha_noise": 0.1,
+    "model.init_args.alpha_groups": 1,
+    "model.init_args.new_anchor_score": 0.0,
+    "model.class_path": "hispo_pl.modules.HiSPO",
+    "data.task": None,
+    "data.dataset": None,
+    "data.datasets": None,
+    "data.batch_size": 1024,
+    "data.waysteps": None,
+    "data.her_temperature": None,
+    "data.her_strategy": "exponential",
+    "data.goal_horizon": "episode",
+    "data.steps_per_epoch": 1000,
+    "data.seed": 0,
+    "data.stream": "pointmaze-1",
+    "data.replay": False,
+    "data.holdout": 0.0,
+    "data.transitions": False,
+    "data.low_inputs": "observation",
+    "data.high_inputs": "observation",
+    "preset": "paper",
+    "eps_high": None,
+    "eps_low": None,
+    "eps": None,
+    "search_candidates": None,
+    "search_batches": None,
+    "eval_episodes": None,
+    "eval_every": None,
+    "optimizer": None,
+    "lr_scheduler": None,
+}
+
+
+def _hispo_fingerprint(tmp_path: Path, *extra: str) -> dict:
+    """The fingerprint a HiSPO stream run on PointMaze-1 with ``extra`` flags checks on
+    resume, parsed as ``fit`` parses it (nothing trained)."""
+    from helpers import ROOT
+
+    from hispo_pl.fit import run_lightning_cli
+    from hispo_pl.run_checks import plain_config, run_fingerprint
+
+    configs = [ROOT / "configs/streams/pointmaze-1.yaml", ROOT / "configs/methods/hispo.yaml"]
+    args = [a for c in configs for a in ("--config", str(c))]
+    args += ["--trainer.logger.init_args.save_dir", str(tmp_path), *extra]
+    config = run_lightning_cli(args, run=False).config.as_dict()
+    return run_fingerprint(plain_config({k: v for k, v in config.items() if k != "config"}))
+
+
+def test_the_paper_preset_without_a_conflicting_flag_trains_as_before(tmp_path, capsys):
+    knobs = ("--eps_high", "0.05", "--eps_low", "0.05")
+    found = _hispo_fingerprint(tmp_path, "--preset", "paper", *knobs)
+    assert {k: found.get(k) for k in PAPER_HISPO_FINGERPRINT} == PAPER_HISPO_FINGERPRINT
+    assert "--preset paper" not in capsys.readouterr().out  # nothing kept, nothing said
+
+
+def test_the_paper_protocol_grid_gives_no_flag_the_preset_sets(tmp_path):
+    from hispo_pl.benchmark.grid import Cell, cell_run, load_grid
+    from hispo_pl.config_files import config_root
+    from hispo_pl.presets import apply_preset, given_keys
+
+    grid = load_grid("paper-protocol", config_root())
+    for stream in grid.streams:
+        for method in grid.methods:
+            run = cell_run(
+                Cell(stream, method, method, 0, ("--eps_high", "0.05")),
+                grid,
+                config_root(),
+                tmp_path,
+            )
+            config = {
+                "model": {"class_path": "hispo_pl.modules.HiSPO", "init_args": {}},
+                "data": {"stream": stream},
+                "trainer": {"callbacks": []},
+            }
+            apply_preset(config, "paper")
+            again = json.loads(json.dumps(config))
+            assert apply_preset(again, "paper", given_keys(run.argv)) == {} and again == config
+
+
+def test_explicit_flags_win_over_the_preset_and_the_run_says_which(tiny_umaze, tmp_path, capsys):
+    flags = ["--data.holdout", "0.2", "--model.init_args.optim.lr", "0.01"]
+    args = tiny_stream_args("ftn", tmp_path, ["pointmaze-umaze-N[3]"], "--preset", "paper", *flags)
+    assert main(args) == 0
+    said = [ln for ln in capsys.readouterr().out.splitlines() if "--preset paper" in ln]
+    assert len(said) == 1, said
+    for kept in ("data.batch_size 64 (the preset: 1024)", "data.holdout 0.2 (the preset: 0.0)"):
+        assert kept in said[0]
+    assert "model.init_args.optim.lr 0.01 (the preset: 0.0003)" in said[0]
+    import yaml
+
+    config = yaml.safe_load((stream_dir(tmp_path) / "task_01.config.yaml").read_text())
+    assert config["data"]["batch_size"] == 64 and config["data"]["holdout"] == 0.2
+    assert config["model"]["init_args"]["optim"]["lr"] == 0.01
+    assert config["model"]["init_args"]["optim"]["schedule"] == "cosine"  # the preset's still
