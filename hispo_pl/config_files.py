@@ -9,7 +9,7 @@ from pathlib import Path
 
 from .cli_errors import VerbParser
 from .errors import UserError
-from .io import atomic_write_text
+from .io import atomic_write_text, make_folder
 
 MAX_CONFIG_NODES = 100_000  # a hand-written config has hundreds; aliases must not explode
 
@@ -134,9 +134,10 @@ def config_main(argv: list[str]) -> int:
             raise UserError(f"{args.dest} is a file; config copy fills a folder: name a new one")
         if args.dest.exists() and any(args.dest.iterdir()):
             raise UserError(f"{args.dest} exists and is not empty; choose a new folder")
+        make_folder(args.dest)
         for name in config_names(root):
             target = args.dest / f"{name}.yaml"
-            target.parent.mkdir(parents=True, exist_ok=True)
+            make_folder(target.parent)
             atomic_write_text(target, (root / f"{name}.yaml").read_text())
         print(f"copied {len(config_names(root))} configs to {args.dest}")
     return 0

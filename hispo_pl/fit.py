@@ -125,8 +125,13 @@ class HispoCLI(LightningCLI):
         ckpt_path = config.get("ckpt_path")
         if ckpt_path and (config.get("data") or {}).get("stream"):
             validate_config(config.as_dict())  # says how a stream resumes
-        if not (ckpt_path and Path(ckpt_path).is_file()):
+        if ckpt_path is None or _lightning_checkpoint_name(str(ckpt_path)):
             return
+        if not Path(ckpt_path).is_file():
+            raise ConfigError(
+                f"--ckpt_path {str(ckpt_path)!r}: no such checkpoint file; give a run's "
+                "task_XX.ckpt (or leave the flag out to train from scratch)"
+            )
         from .modules.hbc import checkpoint_model_hparams, read_checkpoint
 
         # Lightning's own version hands the file's ``_class_path`` to the parser, which imports
@@ -186,6 +191,12 @@ class HispoCLI(LightningCLI):
             used = self.datamodule.dataset_use
             write_task_result(self.trainer.log_dir, self.model, task, self.fit_seconds, used)
             print(f"[hispo-pl] TensorBoard logs: {self.trainer.log_dir}")
+
+
+def _lightning_checkpoint_name(ckpt_path: str) -> bool:
+    """Whether ``ckpt_path`` is one of Lightning's names for a checkpoint it finds itself
+    (``last``, ``hpc``, ``best``, a model registry's), not a file path."""
+    return ckpt_path in ("last", "hpc", "best") or ckpt_path.startswith("registry")
 
 
 def refuse_unseen_variants(model, datamodule: TaskDataModule) -> None:

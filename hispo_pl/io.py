@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO
 
-from .errors import LinkedFileError
+from .errors import LinkedFileError, UserError
 
 
 def replace_link(path: str | Path) -> None:
@@ -84,11 +84,26 @@ def open_append(path: str | Path, mode: str = "a") -> IO:
     return os.fdopen(os.open(path, flags | getattr(os, "O_NOFOLLOW", 0), 0o666), mode)
 
 
+def make_folder(path: str | Path) -> Path:
+    """``path`` made as a folder with its parents, if missing.
+
+    Raises:
+        UserError: a place where no folder can be made (``/proc/x``), named."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except FileNotFoundError as err:
+        raise UserError(
+            f"cannot make the folder {path}: {err.filename or path} does not exist and cannot "
+            "be made; give a folder you can write"
+        ) from None
+    return path
+
+
 def real_folder(path: str | Path, root: str | Path) -> Path:
-    """``path`` made as real folders under ``root`` (made too): a link on the way is
-    replaced by a folder, so what is written there stays inside ``root``."""
-    path, current = Path(path), Path(root)
-    current.mkdir(parents=True, exist_ok=True)
+    """``path`` made as real folders under ``root`` (made too, :func:`make_folder`): a link
+    on the way is replaced by a folder, so what is written there stays inside ``root``."""
+    path, current = Path(path), make_folder(root)
     for part in path.relative_to(root).parts:
         current = current / part
         replace_link(current)

@@ -24,7 +24,7 @@ from matplotlib.patches import Patch
 
 from .envs.drawing import FAILURE, FLOOR, GOAL, LABELS, START, STYLES, WALL
 from .envs.family import family_behaviour
-from .io import write_figure
+from .io import make_folder, write_figure
 from .tasks import Task, parse_task
 
 if TYPE_CHECKING:
@@ -188,7 +188,7 @@ def legend_handles(fig: Figure, rollouts: bool = False) -> list:
 def save_figure(fig: Figure, out: str | Path, dpi: int = 150) -> Path:
     """Write ``fig`` (PNG, or any format its suffix names), creating the folder."""
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    make_folder(out.parent)
     write_figure(fig, out, dpi=dpi, bbox_inches="tight")
     return out
 

@@ -75,7 +75,15 @@ def _require_lists(path: Path, record: dict, keys: Sequence[str], holds: str) ->
 
 def results_problem(results: dict) -> str | None:
     """Why a stream's ``results.json`` cannot be tabulated, or None: R must be a square
-    matrix with one row per task of the stream it names."""
+    matrix with one row per task of the stream it names, of success rates in [0, 1] (None:
+    not measured yet).
+
+    Example:
+        >>> results_problem({"stream": ["a"], "R": [[-1e9]]})
+        'R holds -1000000000.0, not a success rate in [0, 1]'
+        >>> results_problem({"stream": ["a", "b"], "R": [[1.0, None], [0.5, 0.25]]}) is None
+        True
+    """
     R, stream = results.get("R"), results.get("stream")
     if not isinstance(R, list) or not all(isinstance(row, list) for row in R):
         return "no matrix R"
@@ -84,8 +92,12 @@ def results_problem(results: dict) -> str | None:
     if not isinstance(stream, list) or len(stream) != len(R):
         n = len(stream) if isinstance(stream, list) else "no"
         return f"R has {len(R)} rows for a stream of {n} tasks"
-    if not all(v is None or isinstance(v, (int, float)) for row in R for v in row):
+    values = [v for row in R for v in row if v is not None]
+    if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in values):
         return "R holds values that are not numbers"
+    wrong = [v for v in values if not 0 <= v <= 1]  # NaN too: it is no number in [0, 1]
+    if wrong:
+        return f"R holds {wrong[0]}, not a success rate in [0, 1]"
     return None
 
 

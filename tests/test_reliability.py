@@ -457,6 +457,19 @@ def test_malformed_results_are_listed_as_unreadable(tmp_path, capsys, text):
     assert "Runs that could not be read" in (tmp_path / "table.md").read_text()
 
 
+@pytest.mark.parametrize("value", ["-1e9", "NaN", "Infinity", "1.5", "true"])
+def test_results_whose_R_is_no_success_rate_are_listed_as_unreadable(tmp_path, capsys, value):
+    _finished_run(tmp_path, "scn", 0, PM1_TASKS)
+    bad = _finished_run(tmp_path, "ftn", 0, PM1_TASKS)
+    text = (bad / "results.json").read_text()
+    (bad / "results.json").write_text(text.replace("0.9", value, 1))
+    assert main(["benchmark", "--out", str(tmp_path), "--report-only"]) == 0
+    assert "left out of the tables: ftn/seed0" in capsys.readouterr().out
+    table = (tmp_path / "table.md").read_text()
+    said = "R holds values that are not numbers" if value == "true" else "not a success rate"
+    assert "| ftn |" not in table.replace("**", "") and said in table
+
+
 # --- 6. too few episodes to hold one out -----------------------------------------------------
 
 
@@ -608,6 +621,100 @@ def test_paths_that_cannot_be_written_are_one_paragraph(tmp_path, capsys, argv, 
     err = capsys.readouterr().err.strip()
     assert said.replace("{tmp}", str(tmp_path)) in err and "Traceback" not in err
     assert (tmp_path / "file").read_text() == "in the way"
+
+
+GRID_FILES = {
+    "parts-list": "streams: [pointmaze-1]\nmethods: [scn]\nparts: [pointmaze-1]\n",
+    "sweeps-list": "streams: [pointmaze-1]\nmethods: [l2]\nsweeps: [l2]\n",
+    "extra-number": "streams: [pointmaze-1]\nmethods: [scn]\nextra: 5\n",
+    "unknown-method": "streams: [pointmaze-1]\nmethods: [scnn]\n",
+    "unknown-stream": "streams: [pointmaze-9]\nmethods: [scn]\n",
+}
+
+
+@pytest.mark.parametrize(
+    "argv, said",
+    [
+        (["--grid", "paper", "--num-threads", "0"], "argument --num-threads: must be an integer"),
+        (["--grid", "paper", "--workers", "0"], "argument --workers: must be an integer >= 1"),
+        (["--grid", "{tmp}/parts-list.yaml"], "`parts` must be a mapping of part names"),
+        (["--grid", "{tmp}/sweeps-list.yaml"], "`sweeps` must be a mapping of methods"),
+        (["--grid", "{tmp}/extra-number.yaml"], "`extra` must be a list of fit arguments"),
+        (["--grid", "{tmp}/unknown-method.yaml"], "unknown method(s) scnn; known"),
+        (["--grid", "{tmp}/unknown-stream.yaml"], "stream pointmaze-9: no stream config"),
+    ],
+    ids=["threads0", "workers0", *GRID_FILES],
+)
+def test_benchmark_grid_user_errors_are_one_line(tmp_path, capsys, argv, said):
+    for name, text in GRID_FILES.items():
+        (tmp_path / f"{name}.yaml").write_text(text)
+    work, root = tmp_path / "work", tmp_path / "root"
+    args = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    argv = ["benchmark", *args, "--out", str(work), "--export", str(root), "--dry-run"]
+    assert main(argv) == 2  # a dry run: a check that lets a case through trains nothing
+    err = capsys.readouterr().err.strip()
+    assert said in err and len(err.splitlines()) == 1, err
+    assert not work.exists() and not root.exists()
+
+
+@pytest.mark.parametrize(
+    "ckpt", ["{tmp}/missing.ckpt", "", "{tmp}"], ids=["missing", "empty", "dir"]
+)
+def test_fit_ckpt_path_that_is_no_file_is_one_line(tmp_path, capsys, ckpt):
+    config = str(Path(__file__).parents[1] / "configs" / "hbc" / "pointmaze-umaze.yaml")
+    path = ckpt.replace("{tmp}", str(tmp_path))
+    args = ["fit", "--config", config, "--trainer.logger.init_args.save_dir", str(tmp_path)]
+    assert main([*args, "--ckpt_path", path]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"--ckpt_path {path!r}: no such checkpoint file" in err and len(err.splitlines()) == 1
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_corrupt_benchmark_json_is_one_line_and_nothing_is_written(tmp_path, capsys):
+    _finished_run(tmp_path / "out", "scn", 0, PM1_TASKS)
+    (tmp_path / "out" / "benchmark.json").write_text("{")
+    for export in ([], ["--export", str(tmp_path / "dest")]):
+        assert main(["benchmark", "--report-only", "--out", str(tmp_path / "out"), *export]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "benchmark.json is not readable JSON" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "out" / "table.md").exists() and not (tmp_path / "dest").exists()
+
+
+@pytest.mark.parametrize(
+    "embed, said",
+    [
+        ("<!-- report: {tmp}/none/table.md -->\nold\n<!-- end report -->", "no runs"),
+        ("<!-- report: {tmp}/x/runs/table.md -->\nold\n", "has no closing"),
+        ("<!-- report: {tmp}/x/runs/nothing.md -->\nold\n<!-- end report -->", "nothing.md"),
+    ],
+    ids=["no-runs", "not-closed", "no-such-report"],
+)
+def test_a_docs_page_whose_embed_cannot_be_built_is_one_line(tmp_path, capsys, embed, said):
+    _finished_run(tmp_path / "x", "scn", 0, PM1_TASKS)  # x/runs: an exported stream's layout
+    page = tmp_path / "page.md"
+    page.write_text("# page\n" + embed.replace("{tmp}", str(tmp_path)) + "\n")
+    before = page.read_text()
+    assert main(["benchmark", "--report-only", "--docs", str(page)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert said in err and str(page) in err and len(err.splitlines()) == 1, err
+    assert page.read_text() == before
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs /proc, where no folder is made")
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["config", "copy", "/proc/nonexistent/configs"],
+        ["render", "pointmaze-umaze", "--out", "/proc/nonexistent/m.png"],
+        ["benchmark", "--report-only", "--out", "{tmp}/out", "--export", "/proc/nonexistent/d"],
+    ],
+    ids=["config-copy", "render", "export"],
+)
+def test_a_folder_that_cannot_be_made_is_one_line(tmp_path, capsys, argv):
+    _finished_run(tmp_path / "out", "scn", 0, PM1_TASKS)
+    assert main([a.replace("{tmp}", str(tmp_path)) for a in argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "cannot make the folder /proc/nonexistent" in err and len(err.splitlines()) == 1, err
 
 
 # --- 9. two jobs on one missing dataset -------------------------------------------------------

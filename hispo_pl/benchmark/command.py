@@ -11,7 +11,7 @@ from pathlib import Path
 
 from ..config_files import config_root
 from ..errors import Interrupted, RunDirError
-from ..io import atomic_write_text
+from ..io import atomic_write_text, make_folder
 from . import plan
 from .configs import datasets_needed, prepare_datasets
 from .launch import Reporter, run_env, run_local, run_ray
@@ -165,8 +165,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     if not args.stream:
         parser.error("--stream is required (unless --report-only)")
-    if args.num_threads < 1 or (args.workers is not None and args.workers < 1):
-        parser.error("--num-threads and --workers must be >= 1")
     if args.address is not None and args.launcher != "ray":
         parser.error("--address is for --launcher ray")
     config_dir = Path(args.config_dir) if args.config_dir else config_root()
@@ -213,7 +211,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.export:  # refused now rather than after training
         dest = Path(args.export)
         refuse_foreign_export(plan.foreign_export(runs, stream_name, dest), dest)
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out)
     settings = {
         "stream": stream_name,
         "stream_config": str(stream_config),

@@ -97,6 +97,29 @@ def _list(raw: dict, key: str, where: str) -> list:
     return value
 
 
+def _mapping(raw: dict, key: str, where: str, holds: str) -> dict:
+    """``raw[key]``, a mapping (empty when absent).
+
+    Raises:
+        ConfigError: anything else, with what it should hold."""
+    value = raw.get(key) or {}
+    if not isinstance(value, dict):
+        raise ConfigError(f"{where}: `{key}` must be a mapping of {holds}")
+    return value
+
+
+def _number(value, what: str, where: str, kind: type = float):
+    """``value`` as ``kind`` (a grid's sweep values, seeds, budget).
+
+    Raises:
+        ConfigError: not a number of that kind."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"{where}: {what} must be a number, not {value!r}")
+    if kind is int and value != int(value):
+        raise ConfigError(f"{where}: {what} must be an integer, not {value!r}")
+    return kind(value)
+
+
 def grid_from_dict(raw: dict, name: str, where: str = "grid") -> Grid:
     """A :class:`Grid` from its YAML or JSON mapping.
 
@@ -116,23 +139,29 @@ def grid_from_dict(raw: dict, name: str, where: str = "grid") -> Grid:
     seeds = list(range(seeds)) if isinstance(seeds, int) else seeds
     if not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
         raise ConfigError(f"{where}: `seeds` is a count or a list of non-negative integers")
-    parts = {str(k): tuple(str(s) for s in v) for k, v in (raw.get("parts") or {}).items()}
+    parts_raw = _mapping(raw, "parts", where, "part names to lists of streams")
+    if not all(isinstance(v, list) for v in parts_raw.values()):
+        raise ConfigError(f"{where}: each part of `parts` is a list of the grid's streams")
+    parts = {str(k): tuple(str(s) for s in v) for k, v in parts_raw.items()}
     for part, members in parts.items():
         if set(members) - set(streams):
             raise ConfigError(f"{where}: part {part} names streams the grid does not list")
     sweeps = {}
-    for method, spec in (raw.get("sweeps") or {}).items():
+    for method, spec in _mapping(raw, "sweeps", where, "methods to their sweep").items():
         if method not in methods:
             raise ConfigError(f"{where}: sweep of {method}, which is not among the methods")
         if not isinstance(spec, dict) or "key" not in spec or not spec.get("values"):
             raise ConfigError(f"{where}: sweep of {method} needs `key` and `values`")
-        key = spec["key"]
+        key, values = spec["key"], spec["values"]
+        if not isinstance(values, list):
+            raise ConfigError(f"{where}: sweep of {method}: `values` must be a list of numbers")
+        what = f"sweep of {method}: a value"
         sweeps[method] = Sweep(
             method,
             ",".join(map(str, key)) if isinstance(key, list) else str(key),
-            tuple(float(v) for v in spec["values"]),
+            tuple(_number(v, what, where) for v in values),
             str(spec.get("name", "value")),
-            int(spec.get("seed", seeds[0])),
+            _number(spec.get("seed", seeds[0]), f"sweep of {method}: `seed`", where, int),
             bool(spec.get("branch", False)),
         )
         if sweeps[method].branch and not set(sweeps[method].keys) <= set(BRANCHING_KEYS):
@@ -141,6 +170,13 @@ def grid_from_dict(raw: dict, name: str, where: str = "grid") -> Grid:
                 f"{', '.join(BRANCHING_KEYS)} (only the pruning tolerance leaves training alike)"
             )
     steps = raw.get("steps_per_task")
+    if steps is not None and _number(steps, "`steps_per_task`", where, int) < 1:
+        raise ConfigError(f"{where}: `steps_per_task` must be at least 1")
+    extra = raw.get("extra") or []
+    if not isinstance(extra, list) or not all(isinstance(a, str) for a in extra):
+        raise ConfigError(
+            f"{where}: `extra` must be a list of fit arguments as strings, e.g. [--preset, paper]"
+        )
     return Grid(
         str(raw.get("name", name)),
         tuple(streams),
@@ -149,7 +185,7 @@ def grid_from_dict(raw: dict, name: str, where: str = "grid") -> Grid:
         parts,
         sweeps,
         None if steps is None else int(steps),
-        tuple(str(a) for a in raw.get("extra") or ()),
+        tuple(extra),
     )
 
 
@@ -173,7 +209,30 @@ def load_grid(spec: str, config_dir: Path) -> Grid:
         raw = yaml.safe_load(path.read_text())
     except yaml.YAMLError as e:
         raise ConfigError(f"{path}: not YAML ({e.__class__.__name__})") from None
-    return grid_from_dict(raw, path.stem, str(path))
+    grid = grid_from_dict(raw, path.stem, str(path))
+    check_grid_names(grid, config_dir, str(path))
+    return grid
+
+
+def check_grid_names(grid: Grid, config_dir: Path, where: str) -> None:
+    """Refuse a grid that names a method or a stream ``config_dir`` does not have.
+
+    Raises:
+        ConfigError: the first unknown name, with the known ones."""
+    from .plan import known_methods
+
+    known = known_methods(config_dir)
+    unknown = [m for m in grid.methods if m not in known]
+    if unknown:
+        raise ConfigError(
+            f"{where}: unknown method(s) {', '.join(unknown)}; known "
+            f"({Path(config_dir) / 'methods'}/*.yaml): {', '.join(known) or 'none'}"
+        )
+    for stream in grid.streams:
+        try:
+            stream_config_path(stream, config_dir)
+        except (ValueError, FileNotFoundError) as err:
+            raise ConfigError(f"{where}: stream {stream}: {err}") from None
 
 
 def grid_streams(grid: Grid, part: str | None) -> list[str]:

@@ -15,6 +15,22 @@ def cpu_count() -> int:
         return os.cpu_count() or 1
 
 
+def positive_int(text: str) -> int:
+    """An option's count (runs at a time, threads, steps): an integer of at least 1.
+
+    Example:
+        >>> positive_int("2")
+        2
+    """
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, not {text!r}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = VerbParser(
         prog="hispo-pl benchmark",
@@ -62,21 +78,21 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", help="output folder (runs/, tables, figure)")
     parser.add_argument(
         "--steps-per-task",
-        type=int,
+        type=positive_int,
         default=None,
         help="gradient steps per task (--trainer.max_steps); default: the stream config's own "
         "value (6000 in configs/streams/pointmaze-*.yaml; the authors' code's 100000)",
     )
     parser.add_argument(
         "--workers",
-        type=int,
+        type=positive_int,
         default=None,
         help="local: runs at a time (default: CPU cores // threads, at least 1); ray with "
         "--address local: the private instance gets workers x threads CPUs",
     )
     parser.add_argument(
         "--num-threads",
-        type=int,
+        type=positive_int,
         default=1,
         help="torch threads (and Ray CPUs) per run (default: 1)",
     )

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import RunDirError
-from ..io import copy_files, real_folder, refuse_linked
+from ..io import copy_files, make_folder, real_folder, refuse_linked
 from ..metrics import METRICS, continual_metrics, mean_std
 from ..results import Decision, StreamResults, fwt_reference
 from ..rundir import RunDir
@@ -161,7 +161,7 @@ def export_runs(out: Path, dest: Path) -> list[Path]:
             if os.path.lexists(seed_dir / name):
                 pairs.append((seed_dir / name, target / name))
     refuse_linked(src for src, _ in pairs)
-    dest.mkdir(parents=True, exist_ok=True)
+    make_folder(dest)
     for target in runs.values():
         real_folder(target, dest)
     written = copy_files(pairs)

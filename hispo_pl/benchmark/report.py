@@ -9,14 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import RunDirError
+from ..errors import RunDirError, UserError
 from ..io import atomic_write_text, copy_files, write_figure
 from ..rundir import RunDir
 from .claims import CLAIMS_FILE
 from .curves import CURVES_FILE
 from .grid import GRID_FILE
 from .markdown import cell
-from .plan import PLAN_FILE, RUNS_DIR
+from .plan import RUNS_DIR, planned_stream
 from .records import MethodRow, RunRecord, aggregate, load_records
 from .tables import (
     before_training_markdown,
@@ -127,8 +127,7 @@ def write_report(out: Path, stream: str | None = None, figures: bool = True) -> 
             f"no finished runs ({RUNS_DIR}/<method>/seed<S>/{RunDir.RESULTS}) under {out}"
         )
     if stream is None:
-        plan = out / PLAN_FILE
-        stream = json.loads(plan.read_text()).get("stream", "") if plan.exists() else ""
+        stream = planned_stream(out) or ""
     rows, notes = aggregate(records)
     written = []
     for name, text in (
@@ -176,20 +175,30 @@ def embed_reports(doc: Path, root: Path = Path(".")) -> str:
         if not line.startswith(EMBED_BEGIN):
             continue
         target = Path(root) / line[len(EMBED_BEGIN) :].removesuffix("-->").strip()
-        if (target.parent / GRID_FILE).exists():
-            text = _grid_report_text(target).splitlines()
-        elif (target.parent / CURVES_FILE).exists():
-            text = _curves_report_text(target).splitlines()
-        elif (target.parent / CLAIMS_FILE).exists():
-            text = _claims_report_text(target).splitlines()
-        else:
-            text = _stream_report_text(target).splitlines()
+        try:
+            text = _embed_text(target).splitlines()
+        except (ValueError, KeyError, TypeError, FileNotFoundError) as err:
+            raise UserError(
+                f"{doc}: the report of `{line.strip()}` cannot be built ({err}); fix the "
+                "embed or the run files it names"
+            ) from None
         out += [x for x in text[1:] if x or out[-1]]  # without the title, no doubled blank
         while i < len(lines) and lines[i] != EMBED_END:
             i += 1
         if i == len(lines):
-            raise ValueError(f"{doc}: {line} has no closing {EMBED_END}")
+            raise UserError(f"{doc}: `{line.strip()}` has no closing `{EMBED_END}`; add one")
     return "\n".join(out) + "\n"
+
+
+def _embed_text(target: Path) -> str:
+    """The report an embed names, by what its folder holds (:func:`embed_reports`)."""
+    if (target.parent / GRID_FILE).exists():
+        return _grid_report_text(target)
+    if (target.parent / CURVES_FILE).exists():
+        return _curves_report_text(target)
+    if (target.parent / CLAIMS_FILE).exists():
+        return _claims_report_text(target)
+    return _stream_report_text(target)
 
 
 def _claims_report_text(target: Path) -> str:
@@ -235,11 +244,11 @@ def _stream_report_text(target: Path) -> str:
             for name in RunDir.EXPORTED
             for src in target.parent.glob(f"*/seed*/{name}")
         ]
+        if not pairs:
+            raise FileNotFoundError(f"no runs (<method>/seed<S>/) under {target.parent}")
         for _, dst in pairs:
             dst.parent.mkdir(parents=True, exist_ok=True)
         copy_files(pairs)
-        stream = (target.parent / PLAN_FILE).exists() and json.loads(
-            (target.parent / PLAN_FILE).read_text()
-        ).get("stream")
+        stream = planned_stream(target.parent)
         write_report(Path(tmp), stream or target.parent.name, figures=False)
         return (Path(tmp) / target.name).read_text()
