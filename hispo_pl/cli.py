@@ -37,7 +37,6 @@ if __name__ == "__main__" and _working_folder_first():
     # a config's class_path naming a module there is refused, never run.
     del sys.path[0]
 
-import contextlib  # noqa: E402
 import errno  # noqa: E402
 import signal  # noqa: E402
 import warnings  # noqa: E402
@@ -45,6 +44,7 @@ import warnings  # noqa: E402
 from .commands import data_main, evaluate_main, render_main  # noqa: E402
 from .errors import Interrupted, UserError  # noqa: E402
 from .fit import run_fit  # noqa: E402
+from .stopping import terminate_as_interrupt  # noqa: E402
 
 
 def _quiet_known_warnings() -> None:
@@ -131,29 +131,6 @@ def machine_error(err: OSError, resumable: bool = False) -> str | None:
     where = f" {err.filename}" if err.filename else ""
     kept = " Finished work is kept: rerun the same command to resume." if resumable else ""
     return f"cannot use{where}: {hint} ({err.strerror}).{kept}"
-
-
-@contextlib.contextmanager
-def terminate_as_interrupt():
-    """SIGTERM (``kill``, a scheduler's stop, the benchmark stopping its runs) ends a command
-    the way Ctrl-C does: a stream keeps what it finished and says how to resume, a benchmark
-    stops its runs. Lightning alone only notes a SIGTERM that arrives during a training step,
-    and a stream's next task forgets it. Yields the list the signal's number is put in."""
-    received: list[int] = []
-
-    def interrupt(signum, frame):
-        received.append(signum)
-        raise KeyboardInterrupt
-
-    try:
-        previous = signal.signal(signal.SIGTERM, interrupt)
-    except ValueError:  # not the main thread: leave signals alone
-        yield received
-        return
-    try:
-        yield received
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 VERBS: dict[str, str] = {

@@ -70,6 +70,7 @@ def run_stream_from_cli(cli: LightningCLI, model, datamodule) -> dict:
 
     from .loop import ContinualLoop
     from .metrics import module_bytes
+    from .stopping import StopWhenAsked
 
     config = cli.config[cli.subcommand]
     data_args = dict(config["data"])
@@ -93,7 +94,7 @@ def run_stream_from_cli(cli: LightningCLI, model, datamodule) -> dict:
         max_steps = config["trainer"].get("max_steps") or 0
         label = f"task {task_label(k)}/{len(datamodule.tasks)}"
         bar = config["trainer"].get("enable_progress_bar") is not False
-        task_callbacks = task_progress(callbacks, label, max_steps, bar)
+        task_callbacks = [*task_progress(callbacks, label, max_steps, bar), StopWhenAsked()]
         if not any(isinstance(cb, ProgressBar) for cb in task_callbacks):
             extra["enable_progress_bar"] = False  # lines, or no bar: not Lightning's either
         return cli.instantiate_trainer(

@@ -24,6 +24,7 @@ from .modules.hbc import GoalConditionedBC
 from .presets import apply_preset, given_keys, kept_note
 from .run_checks import METHOD_KNOBS, apply_method_knobs, validate_config
 from .rundir import RunDir
+from .stopping import StopWhenAsked
 from .tasks import unseen_variant_tasks, unseen_variants_message
 
 
@@ -166,7 +167,8 @@ class HispoCLI(LightningCLI):
             bar = self.trainer.progress_bar_callback is not None
             callbacks = self.trainer.callbacks
             label = datamodule.describe()
-            self.trainer.callbacks = task_progress(callbacks, label, self.trainer.max_steps, bar)
+            progress = task_progress(callbacks, label, self.trainer.max_steps, bar)
+            self.trainer.callbacks = [*progress, StopWhenAsked()]
             start = time.perf_counter()
             fit_interruptibly(self.trainer, model, datamodule, **kwargs)
             self.fit_seconds = time.perf_counter() - start

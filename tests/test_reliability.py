@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from helpers import error_lines, tiny_stream_args
+from helpers import TINY_STREAM, error_lines, tiny_stream_args
 from probes import SLOW_STEPS, TINY_HISPO, cli_source, spawn, stream_dir, wait_for
 
 from hispo_pl.cli import main
@@ -338,6 +338,37 @@ def test_kill_outside_a_training_step_stops_the_stream(tiny_umaze, tmp_path):
     out, err = proc.communicate(timeout=30)
     assert proc.returncode == 128 + signal.SIGTERM, err[-3000:]
     assert "Rerun the same command to resume" in err and "Traceback" not in err
+
+
+SWALLOWED = """
+import pathlib, time
+from hispo_pl.evaluation import RolloutEvaluator
+_run = RolloutEvaluator.run
+class _Finalised:
+    def __del__(self):
+        pathlib.Path("{marker}").touch()
+        time.sleep(5)  # the SIGTERM arrives here: Python ignores the interrupt it raises
+def _run_with_a_finaliser(self, *args, **kwargs):
+    _Finalised()  # collected at once: its __del__ runs inside the task-end rollouts
+    return _run(self, *args, **kwargs)
+RolloutEvaluator.run = _run_with_a_finaliser
+"""
+
+
+def test_a_kill_swallowed_by_a_finaliser_still_stops_the_stream(tiny_umaze, tmp_path):
+    """A SIGTERM's KeyboardInterrupt raised inside ``__del__`` is printed as "Exception
+    ignored" and lost; the stop request stays, and the task's end stops the run (Lightning
+    notes a SIGTERM only during its training steps, and the next task would forget it)."""
+    marker = tmp_path / "finalising"
+    args = tiny_stream_args("ftn", tmp_path, TINY_STREAM, "--trainer.max_steps", "2")
+    proc = spawn(cli_source(args, SWALLOWED.format(marker=marker)))
+    wait_for(marker, proc)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=120)
+    assert "Exception ignored" in err and "KeyboardInterrupt" in err  # swallowed, as probed
+    assert proc.returncode == 128 + signal.SIGTERM, err[-3000:]
+    assert "interrupted during task 1 of 2" in err and "Rerun the same command to resume" in err
+    assert not (stream_dir(tmp_path) / "results.json").exists()
 
 
 # --- 5. the benchmark never mixes streams ---------------------------------------------------
