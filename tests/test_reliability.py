@@ -1020,3 +1020,17 @@ def test_explicit_flags_win_over_the_preset_and_the_run_says_which(tiny_umaze, t
     assert config["data"]["batch_size"] == 64 and config["data"]["holdout"] == 0.2
     assert config["model"]["init_args"]["optim"]["lr"] == 0.01
     assert config["model"]["init_args"]["optim"]["schedule"] == "cosine"  # the preset's still
+
+
+def test_the_grid_report_replaces_a_linked_folder(tmp_path):
+    from hispo_pl.benchmark.grid import grid_from_dict
+    from hispo_pl.benchmark.grid_report import write_grid_report
+
+    grid = grid_from_dict({"streams": ["pointmaze-1"], "methods": ["scn"], "seeds": 1}, "g")
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (tmp_path / "root").mkdir()
+    (tmp_path / "root" / "grid-g").symlink_to(outside, target_is_directory=True)
+    written = write_grid_report(grid, tmp_path / "root", figures=False)
+    assert written and not list(outside.iterdir())
+    assert not (tmp_path / "root" / "grid-g").is_symlink()

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import atomic_write_text, write_figure
+from ..io import atomic_write_text, real_folder, write_figure
 from ..metrics import METRIC, METRICS
 from ..rundir import RunDir
 from . import paper
@@ -480,7 +480,7 @@ def write_grid_report(grid: Grid, root: Path, figures: bool = True) -> list[Path
     """Write the reports, ``grid.json`` and (``figures``) ``per_vs_memory.png`` into
     ``<root>/grid-<name>/``. Returns the files written."""
     out = report_dir(grid, root)
-    out.mkdir(parents=True, exist_ok=True)
+    real_folder(out, root)  # a link there is replaced: the reports stay under root
     texts, rows = grid_reports(grid, root)
     written = []
     atomic_write_text(out / GRID_FILE, json.dumps(grid.to_dict(), indent=1) + "\n")
