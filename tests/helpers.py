@@ -15,6 +15,28 @@ import torch
 from hispo_pl.config import BackboneConfig
 from hispo_pl.modules.hispo import HiSPO
 
+TIMES = ("wall_time_s", "phase_time_s")  # what two runs of the same work may differ in
+
+
+def nested_equal(a, b) -> bool:
+    """Nested checkpoint contents equal, tensors bit for bit."""
+    if torch.is_tensor(a):
+        return torch.is_tensor(b) and a.dtype == b.dtype and torch.equal(a, b)
+    if isinstance(a, dict):
+        return (
+            isinstance(b, dict)
+            and a.keys() == b.keys()
+            and all(nested_equal(a[k], b[k]) for k in a)
+        )
+    if isinstance(a, list | tuple):
+        return len(a) == len(b) and all(nested_equal(x, y) for x, y in zip(a, b, strict=True))
+    return a == b
+
+
+def without_times(record: dict) -> dict:
+    """A results or progress record without its wall times."""
+    return {k: v for k, v in record.items() if k not in TIMES}
+
 
 def quiet_trainer(max_steps: int, **kwargs) -> L.Trainer:
     """A short CPU Trainer that writes nothing and prints nothing unless ``kwargs`` say so."""

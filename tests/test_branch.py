@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
-from helpers import BENCH_TINY_OVERRIDES, fit_tiny_stream
+from helpers import BENCH_TINY_OVERRIDES, fit_tiny_stream, nested_equal, without_times
 
 from hispo_pl.benchmark import branch
 from hispo_pl.benchmark.configs import saved_setting
@@ -26,7 +26,6 @@ ROOT = Path(__file__).resolve().parents[1]
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]", "pointmaze-umaze-IA[3]"]
 BUDGET = ("--trainer.max_steps", "20")
 ROOT_EPS = 0.1
-TIMES = ("wall_time_s", "phase_time_s")
 
 
 def _eps_args(eps: float) -> tuple[str, ...]:
@@ -53,20 +52,6 @@ def _tolerance_sharing(run: Path, tasks: int) -> float:
     raise AssertionError(f"no tolerance shares {tasks} tasks with {run}: {decisions}")
 
 
-def _equal(a, b) -> bool:
-    if torch.is_tensor(a):
-        return torch.is_tensor(b) and a.dtype == b.dtype and torch.equal(a, b)
-    if isinstance(a, dict):
-        return isinstance(b, dict) and a.keys() == b.keys() and all(_equal(a[k], b[k]) for k in a)
-    if isinstance(a, list | tuple):
-        return len(a) == len(b) and all(_equal(x, y) for x, y in zip(a, b, strict=True))
-    return a == b
-
-
-def _without_times(record: dict) -> dict:
-    return {k: v for k, v in record.items() if k not in TIMES}
-
-
 @pytest.mark.parametrize("shared", [2, 3], ids=["trains-on", "copied-whole"])
 def test_a_branched_run_equals_a_real_run_of_its_tolerance(root_run, tmp_path, shared):
     eps = _tolerance_sharing(root_run, shared)
@@ -75,12 +60,12 @@ def test_a_branched_run_equals_a_real_run_of_its_tolerance(root_run, tmp_path, s
     branch.branch_run(root_run, target.path, shared, _both(eps), {"method": "hispo"})
     assert target.read_run_record()["branched_tasks"] == shared
     results = fit_tiny_stream("hispo", tmp_path / "branched", STREAM, *_eps_args(eps))[0]
-    assert _without_times(results) == _without_times(real.read_results())
+    assert without_times(results) == without_times(real.read_results())
     assert [d.to_json() for d in target.decisions()] == [d.to_json() for d in real.decisions()]
-    assert _without_times(target.read_progress()) == _without_times(real.read_progress())
+    assert without_times(target.read_progress()) == without_times(real.read_progress())
     for task in range(len(STREAM)):
         a = torch.load(target.checkpoint(task), weights_only=True)
-        assert _equal(a, torch.load(real.checkpoint(task), weights_only=True)), task
+        assert nested_equal(a, torch.load(real.checkpoint(task), weights_only=True)), task
     # the copied tasks cost nothing; a task trained after the branch did
     training = [p["training"] for p in target.read_progress()["phase_time_s"]]
     assert training[:shared] == [0.0] * shared and all(t > 0 for t in training[shared:])

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
-from helpers import BENCH_TINY_OVERRIDES, TINY_STREAM, fit_tiny_stream
+from helpers import BENCH_TINY_OVERRIDES, TINY_STREAM, fit_tiny_stream, nested_equal, without_times
 
 from hispo_pl.benchmark import derive, grid_run
 from hispo_pl.benchmark import grid as gr
@@ -19,7 +19,6 @@ from hispo_pl.errors import RunDirError
 from hispo_pl.rundir import RunDir
 
 ROOT = Path(__file__).resolve().parents[1]
-TIMES = ("wall_time_s", "phase_time_s")
 # enough steps and episodes that a finished task acts differently with a later network
 BUDGET = ("--trainer.max_steps", "40", "--trainer.callbacks.init_args.episodes", "6")
 PAIRS = [("sc1", "scn"), ("ft1", "ftn")]
@@ -33,21 +32,6 @@ def real_runs(tiny_umaze, tmp_path_factory) -> tuple[Path, dict[str, Path]]:
     return root, {m: fit_tiny_stream(m, root / m, TINY_STREAM, *BUDGET)[1] for m in methods}
 
 
-def _equal(a, b) -> bool:
-    """Nested checkpoint contents equal, tensors bit for bit."""
-    if torch.is_tensor(a):
-        return torch.is_tensor(b) and a.dtype == b.dtype and torch.equal(a, b)
-    if isinstance(a, dict):
-        return isinstance(b, dict) and a.keys() == b.keys() and all(_equal(a[k], b[k]) for k in a)
-    if isinstance(a, list | tuple):
-        return len(a) == len(b) and all(_equal(x, y) for x, y in zip(a, b, strict=True))
-    return a == b
-
-
-def _without_times(record: dict) -> dict:
-    return {k: v for k, v in record.items() if k not in TIMES}
-
-
 @pytest.mark.parametrize("target,source", PAIRS)
 def test_a_derived_run_equals_a_real_run_of_the_same_seed(real_runs, target, source):
     root, runs = real_runs
@@ -56,14 +40,14 @@ def test_a_derived_run_equals_a_real_run_of_the_same_seed(real_runs, target, sou
     real, sibling = RunDir(runs[target]), RunDir(runs[source])
     # the entry measured again matters: copying the sibling's R would fail here
     assert derived.R != sibling.stream_results().R
-    assert _without_times(derived.to_json()) == _without_times(real.read_results())
+    assert without_times(derived.to_json()) == without_times(real.read_results())
     assert RunDir(out).stream_results() == derived
     progress, real_progress = RunDir(out).read_progress(), real.read_progress()
-    assert _without_times(progress) == _without_times(real_progress)
+    assert without_times(progress) == without_times(real_progress)
     assert progress["fingerprint"]["model.init_args.keep"] == "last"
     for task in range(len(TINY_STREAM)):
         a = torch.load(RunDir(out).checkpoint(task), weights_only=True)
-        assert _equal(a, torch.load(real.checkpoint(task), weights_only=True))
+        assert nested_equal(a, torch.load(real.checkpoint(task), weights_only=True))
         text = RunDir(out).task_config(task).read_text()
         assert text.replace(str(out.parents[1]), str(runs[target].parents[1])) == (
             real.task_config(task).read_text()

@@ -134,17 +134,46 @@ def _figures(stats: dict[str, Stats], what: Sequence[str] = ("per", "mem")) -> s
     return "; ".join(f"{m}: " + ", ".join(s.text(w) for w in what) for m, s in stats.items())
 
 
+def rule_on_family(
+    family: str,
+    methods: Sequence[str],
+    ok: Callable[[dict[str, Stats]], bool],
+    what: Sequence[str] = ("per", "mem"),
+) -> Callable:
+    """A claim on ``methods`` over a family's streams, judged by ``ok`` on their stats."""
+
+    def test(committed: Committed):
+        stats = _stats(committed, family, methods)
+        return None if stats is None else (_figures(stats, what), verdict(ok(stats)))
+
+    return test
+
+
+def rule_on_streams(
+    methods: Sequence[str],
+    ok: Callable[[dict[str, Stats]], bool],
+    what: Sequence[str],
+    streams_of: Callable[[Committed], Sequence[str]],
+) -> Callable:
+    """A claim on ``methods`` over the streams ``streams_of`` picks, judged by ``ok``."""
+
+    def test(committed: Committed):
+        streams = streams_of(committed)
+        found = {m: method_stats(committed, streams, m) for m in methods}
+        if not streams or any(s is None for s in found.values()):
+            return None
+        return _figures(found, what), verdict(ok(found))
+
+    return test
+
+
 def matches_with_less_memory(family: str, other: str) -> Callable:
     """HiSPO's PER interval overlaps (or lies above) ``other``'s, with less memory."""
 
-    def test(committed: Committed):
-        stats = _stats(committed, family, ("hispo", other))
-        if stats is None:
-            return None
-        h, o = stats["hispo"], stats[other]
-        return _figures(stats), verdict(not below(h, o) and h.mem < o.mem)
+    def ok(s: dict[str, Stats]) -> bool:
+        return not below(s["hispo"], s[other]) and s["hispo"].mem < s[other].mem
 
-    return test
+    return rule_on_family(family, ("hispo", other), ok)
 
 
 HIGH = 5.0  # "high performance" beside HiSPO: a mean PER at most this many points below it
@@ -154,42 +183,30 @@ def high_but_more_memory(family: str, others: Sequence[str]) -> Callable:
     """``others`` perform high (mean PER within :data:`HIGH` points of HiSPO's, or above) but
     store more than HiSPO."""
 
-    def test(committed: Committed):
-        stats = _stats(committed, family, ("hispo", *others))
-        if stats is None:
-            return None
-        h = stats["hispo"]
-        ok = all(stats[o].per >= h.per - HIGH and stats[o].mem > h.mem for o in others)
-        return _figures(stats), verdict(ok)
+    def ok(s: dict[str, Stats]) -> bool:
+        h = s["hispo"]
+        return all(s[o].per >= h.per - HIGH and s[o].mem > h.mem for o in others)
 
-    return test
+    return rule_on_family(family, ("hispo", *others), ok)
 
 
 def slightly_below_similar_memory(family: str, others: Sequence[str]) -> Callable:
     """``others`` lie below HiSPO in PER (mean) with memory within 25 % of its."""
 
-    def test(committed: Committed):
-        stats = _stats(committed, family, ("hispo", *others))
-        if stats is None:
-            return None
-        h = stats["hispo"]
-        ok = all(stats[o].per < h.per and abs(stats[o].mem - h.mem) <= 0.25 * h.mem for o in others)
-        return _figures(stats), verdict(ok)
+    def ok(s: dict[str, Stats]) -> bool:
+        h = s["hispo"]
+        return all(s[o].per < h.per and abs(s[o].mem - h.mem) <= 0.25 * h.mem for o in others)
 
-    return test
+    return rule_on_family(family, ("hispo", *others), ok)
 
 
 def fail_against_hispo(family: str, others: Sequence[str]) -> Callable:
     """Every one of ``others`` has a PER interval wholly below HiSPO's."""
 
-    def test(committed: Committed):
-        stats = _stats(committed, family, ("hispo", *others))
-        if stats is None:
-            return None
-        ok = all(below(stats[o], stats["hispo"]) for o in others)
-        return _figures(stats, ("per",)), verdict(ok)
+    def ok(s: dict[str, Stats]) -> bool:
+        return all(below(s[o], s["hispo"]) for o in others)
 
-    return test
+    return rule_on_family(family, ("hispo", *others), ok, ("per",))
 
 
 def table1_order(streams_of: Callable[[Committed], Sequence[str]]) -> Callable:
@@ -210,62 +227,41 @@ def table1_order(streams_of: Callable[[Committed], Sequence[str]]) -> Callable:
 def no_forgetting(methods: Sequence[str], streams_of: Callable[[Committed], Sequence[str]]):
     """Every one of ``methods`` keeps BWT within :data:`ZERO` of 0."""
 
-    def test(committed: Committed):
-        streams = streams_of(committed)
-        found = {m: method_stats(committed, streams, m) for m in methods}
-        if not streams or any(s is None for s in found.values()):
-            return None
-        return _figures(found, ("bwt",)), verdict(all(abs(s.bwt) <= ZERO for s in found.values()))
+    def ok(s: dict[str, Stats]) -> bool:
+        return all(abs(v.bwt) <= ZERO for v in s.values())
 
-    return test
+    return rule_on_streams(methods, ok, ("bwt",), streams_of)
 
 
 def forgets(methods: Sequence[str], streams_of: Callable[[Committed], Sequence[str]]):
     """Every one of ``methods`` has a negative BWT."""
 
-    def test(committed: Committed):
-        streams = streams_of(committed)
-        found = {m: method_stats(committed, streams, m) for m in methods}
-        if not streams or any(s is None for s in found.values()):
-            return None
-        return _figures(found, ("bwt",)), verdict(all(s.bwt < -ZERO for s in found.values()))
+    def ok(s: dict[str, Stats]) -> bool:
+        return all(v.bwt < -ZERO for v in s.values())
 
-    return test
+    return rule_on_streams(methods, ok, ("bwt",), streams_of)
 
 
 def fwt_order(streams_of: Callable[[Committed], Sequence[str]]):
     """FT1 and FTN transfer forward (FWT > 0) and HiSPO less than FTN."""
 
-    def test(committed: Committed):
-        streams = streams_of(committed)
-        found = {m: method_stats(committed, streams, m) for m in ("ft1", "ftn", "hispo")}
-        if not streams or any(s is None for s in found.values()):
-            return None
-        f = found
-        ok = f["ft1"].fwt > 0 and f["ftn"].fwt > 0 and f["hispo"].fwt < f["ftn"].fwt
-        return _figures(found, ("fwt",)), verdict(ok)
+    def ok(s: dict[str, Stats]) -> bool:
+        return s["ft1"].fwt > 0 and s["ftn"].fwt > 0 and s["hispo"].fwt < s["ftn"].fwt
 
-    return test
+    return rule_on_streams(("ft1", "ftn", "hispo"), ok, ("fwt",), streams_of)
 
 
-def ablation(ok: Callable[[dict[str, Stats]], bool], what: Sequence[str] = ("per", "mem")):
+def ablation(ok: Callable[[dict[str, Stats]], bool]) -> Callable:
     """The AntMaze ablation (CSP, CSPO, HiSPO) judged by ``ok``."""
-
-    def test(committed: Committed):
-        stats = _stats(committed, "antmaze", ("csp", "cspo", "hispo"))
-        if stats is None:
-            return None
-        return _figures(stats, what), verdict(ok(stats))
-
-    return test
+    return rule_on_family("antmaze", ("csp", "cspo", "hispo"), ok)
 
 
-def hilow_less_memory(committed: Committed):
-    """HiLOW stores less than HiSPO on AntMaze (the paper's Figure 3 is an AntMaze stream)."""
-    stats = _stats(committed, "antmaze", ("hilow", "hispo"))
-    if stats is None:
-        return None
-    return _figures(stats), verdict(stats["hilow"].mem < stats["hispo"].mem)
+def _hilow_stores_less(s: dict[str, Stats]) -> bool:
+    """HiLOW stores less than HiSPO (the paper's Figure 3 is an AntMaze stream)."""
+    return s["hilow"].mem < s["hispo"].mem
+
+
+hilow_less_memory = rule_on_family("antmaze", ("hilow", "hispo"), _hilow_stores_less)
 
 
 def growth_order(memory: Sequence[float], rtol: float = 1e-6) -> int:
