@@ -14,7 +14,8 @@
 The verbs, their help and the errors of the whole command live here; ``fit`` runs through the
 fit API (:mod:`hispo_pl.fit`, a stream's loop in :mod:`hispo_pl.cli_stream`), ``data``,
 ``evaluate`` and ``render`` in :mod:`hispo_pl.commands`, ``benchmark`` in
-:mod:`hispo_pl.benchmark`.
+:mod:`hispo_pl.benchmark`. Each verb's module is imported when the verb runs, so help answers
+without loading Lightning.
 """
 
 from __future__ import annotations
@@ -41,9 +42,7 @@ import errno  # noqa: E402
 import signal  # noqa: E402
 import warnings  # noqa: E402
 
-from .commands import data_main, evaluate_main, render_main  # noqa: E402
 from .errors import Interrupted, UserError  # noqa: E402
-from .fit import run_fit  # noqa: E402
 from .stopping import terminate_as_interrupt  # noqa: E402
 
 
@@ -178,12 +177,11 @@ def _dispatch(argv: list[str]) -> int:
         return 0
     if argv[0] in NOT_HERE:
         raise UserError(f"no {argv[0]!r} verb here; {NOT_HERE[argv[0]]}")
-    if argv[0] == "data":
-        return data_main(argv[1:])
-    if argv[0] == "evaluate":
-        return evaluate_main(argv[1:])
-    if argv[0] == "render":
-        return render_main(argv[1:])
+    if argv[0] in ("data", "evaluate", "render"):
+        from .commands import data_main, evaluate_main, render_main
+
+        verb_main = {"data": data_main, "evaluate": evaluate_main, "render": render_main}
+        return verb_main[argv[0]](argv[1:])
     if argv[0] == "config":
         from .config_files import config_main
 
@@ -194,6 +192,8 @@ def _dispatch(argv: list[str]) -> int:
         return benchmark_main(argv[1:])
     if argv[0] != "fit" and not argv[0].startswith("-"):
         raise UserError(f"unknown verb {argv[0]!r}; the verbs are {', '.join(VERBS)}")
+    from .fit import run_fit
+
     return run_fit(argv)
 
 

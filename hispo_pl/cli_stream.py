@@ -70,7 +70,6 @@ def run_stream_from_cli(cli: LightningCLI, model, datamodule) -> dict:
 
     from .loop import ContinualLoop
     from .metrics import module_bytes
-    from .stopping import StopWhenAsked
 
     config = cli.config[cli.subcommand]
     data_args = dict(config["data"])
@@ -87,7 +86,7 @@ def run_stream_from_cli(cli: LightningCLI, model, datamodule) -> dict:
     def make_trainer(k: int):
         """Task ``k``'s Trainer: the model summary once per stream, and progress as lines when
         the output is not a terminal."""
-        from .console import task_progress
+        from .console import StopWhenAsked, task_progress
 
         extra: dict = {} if first_trainer[0] else {"enable_model_summary": False}
         first_trainer[0] = False

@@ -8,17 +8,20 @@ import argparse
 import json
 import sys
 from pathlib import Path
-
-import torch
+from typing import TYPE_CHECKING
 
 from .cli_errors import VerbParser
 from .errors import Interrupted, UserError
-from .modules.hbc import GoalConditionedBC
+
+if TYPE_CHECKING:  # torch and Lightning are imported when a verb runs, not for its --help
+    from .modules.hbc import GoalConditionedBC
 
 
 def set_num_threads(n: int) -> None:
     """Torch intra-op threads; 0 keeps torch's default. On 2 shared cores 1 often wins."""
     if n > 0:
+        import torch
+
         torch.set_num_threads(n)
 
 
@@ -113,6 +116,8 @@ def load_checkpoint_policy(
     (``as_task`` counts from 1; default the last trained). A missing file, or tasks whose
     observations or actions the module was not built for, stop with a usage error rather
     than a shape error deep in a rollout."""
+    from .modules.hbc import GoalConditionedBC
+
     if not Path(ckpt).is_file():
         parser.error(f"no checkpoint at {ckpt}")
     module = GoalConditionedBC.from_checkpoint_file(ckpt)
@@ -156,9 +161,6 @@ def other_task_note(ckpt: str, as_task: int, tasks: list) -> str | None:
 
 def evaluate_main(argv: list[str]) -> int:
     """``hispo-pl evaluate``: any checkpoint on any task, seen or not."""
-    from .evaluation import RolloutEvaluator, module_policy
-    from .tasks import parse_task, unseen_variant_tasks
-
     parser = VerbParser(
         prog="hispo-pl evaluate", description="Roll out a checkpoint's policy on a task"
     )
@@ -172,6 +174,9 @@ def evaluate_main(argv: list[str]) -> int:
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
     set_num_threads(args.num_threads)
+    from .evaluation import RolloutEvaluator, module_policy
+    from .tasks import parse_task, unseen_variant_tasks
+
     try:
         task = parse_task(args.task)
     except UserError as err:

@@ -18,6 +18,7 @@ from .metrics import METRICS
 from .progress import duration, interactive
 from .results import Decision, StreamResults
 from .rundir import RunDir, task_label
+from .stopping import stop_requested
 
 # Lightning's start-of-fit notices (accelerator lines, tips) go through these loggers
 LIGHTNING_NOTICES = (
@@ -156,6 +157,24 @@ class TaskProgressBar(TQDMProgressBar):
         metrics = super().get_metrics(trainer, pl_module)
         metrics.pop("v_num", None)
         return metrics
+
+
+class StopWhenAsked(L.Callback):
+    """Raise ``KeyboardInterrupt`` at the next training step, or at the task's end, when a
+    signal asked the command to stop and a finaliser swallowed the interrupt it raised."""
+
+    def _check(self) -> None:
+        if stop_requested():
+            raise KeyboardInterrupt
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
+        self._check()
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        self._check()
+
+    def on_train_end(self, trainer, pl_module) -> None:
+        self._check()
 
 
 def task_progress(callbacks: list, label: str, max_steps: int | None, bar: bool) -> list:

@@ -16,7 +16,7 @@ from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
 from .cli_errors import dotted_flags, parse_error_line, unknown_flag, without_flag
 from .cli_stream import run_stream_from_cli
 from .commands import flip_note, set_num_threads
-from .console import print_stream_results
+from .console import StopWhenAsked, print_stream_results
 from .data.datamodule import TaskDataModule
 from .errors import ConfigError, Interrupted, UserError
 from .io import replace_link
@@ -24,7 +24,6 @@ from .modules.hbc import GoalConditionedBC
 from .presets import apply_preset, given_keys, kept_note
 from .run_checks import METHOD_KNOBS, apply_method_knobs, validate_config
 from .rundir import RunDir
-from .stopping import StopWhenAsked
 from .tasks import unseen_variant_tasks, unseen_variants_message
 
 

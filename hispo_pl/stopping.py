@@ -3,15 +3,14 @@ runs) ends a command the way Ctrl-C does, and the request stays until the comman
 
 The signal raises ``KeyboardInterrupt`` wherever Python is; raised while Python runs a
 finaliser (an object's ``__del__``, a weakref callback), it is printed as "Exception ignored"
-and lost. So the request is kept here, and :class:`StopWhenAsked`, among every Trainer's
-callbacks, raises it again at the next training step or task end."""
+and lost. So the request is kept here, and :class:`~hispo_pl.console.StopWhenAsked`, among
+every Trainer's callbacks, raises it again at the next training step or task end. (No
+Lightning here: ``hispo-pl --help`` imports this module.)"""
 
 from __future__ import annotations
 
 import contextlib
 import signal
-
-import lightning as L
 
 _received: list[int] = []  # the signals asking the command to stop, while it runs
 
@@ -46,21 +45,3 @@ def terminate_as_interrupt():
 def stop_requested() -> bool:
     """Whether a signal asked the running command to stop."""
     return bool(_received)
-
-
-class StopWhenAsked(L.Callback):
-    """Raise ``KeyboardInterrupt`` at the next training step, or at the task's end, when a
-    signal asked the command to stop and a finaliser swallowed the interrupt it raised."""
-
-    def _check(self) -> None:
-        if stop_requested():
-            raise KeyboardInterrupt
-
-    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
-        self._check()
-
-    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
-        self._check()
-
-    def on_train_end(self, trainer, pl_module) -> None:
-        self._check()
