@@ -159,3 +159,13 @@ def test_the_grid_trains_a_tolerance_sweep_as_a_tree(tiny_umaze, tmp_path, capsy
     # the chosen value's seed 0 is its sweep run; nothing is left to run
     assert cli_main([*args, "--dry-run"]) == 0
     assert "pointmaze-1: 4 done, 0 to run" in capsys.readouterr().out
+
+
+def test_a_branch_refuses_a_folder_another_process_holds(root_run, tmp_path):
+    from hispo_pl.resume import RunDirLock
+
+    target = tmp_path / "held"
+    target.mkdir()
+    with RunDirLock(target), pytest.raises(RunDirError, match="in use by another run"):
+        branch.branch_run(root_run, target, 1, _both(ROOT_EPS), {})
+    assert not RunDir(target).progress_file.exists()

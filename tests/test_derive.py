@@ -62,6 +62,17 @@ def test_a_derived_run_equals_a_real_run_of_the_same_seed(real_runs, target, sou
     assert RunDir(out).read_run_record()["derived_from"] == str(runs[source])
 
 
+def test_a_derivation_holds_its_folder_as_a_run_does(real_runs, tmp_path):
+    from hispo_pl.resume import RunDirLock
+
+    _, runs = real_runs
+    target = tmp_path / "held"
+    target.mkdir()
+    with RunDirLock(target), pytest.raises(RunDirError, match="in use by another run"):
+        derive.derive_run(runs["scn"], target)
+    assert not RunDir(target).has_results()
+
+
 def test_only_a_finished_keep_all_run_with_its_checkpoints_derives(real_runs, tmp_path):
     root, runs = real_runs
     assert derive.derivable_run(runs["scn"]) and derive.derivable_run(runs["scn"], runs["scn"])

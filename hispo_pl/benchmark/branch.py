@@ -150,11 +150,22 @@ def branch_run(
     datasets and fingerprint; no training time, as none was spent), the decisions with ``eps``
     written in, and ``run.json`` (``record`` with ``branched_tasks``, and ``branched_from``: the
     source's directory unless ``record`` names it otherwise).
-    The run's own fit then resumes after them.
+    The run's own fit then resumes after them. ``target``'s run lock is held meanwhile.
 
     Raises:
         RunDirError: ``source`` has fewer finished tasks or checkpoints, ``target`` already
-            holds a run, or a decision of those tasks would differ at ``eps``."""
+            holds a run or another process holds it, or a decision of those tasks would
+            differ at ``eps``."""
+    from ..resume import RunDirLock
+
+    Path(target).mkdir(parents=True, exist_ok=True)
+    with RunDirLock(target):  # as a run holds its folder: two launches never branch into one
+        _write_branch(source, target, tasks, eps, record)
+
+
+def _write_branch(
+    source: str | Path, target: str | Path, tasks: int, eps: Mapping[str, float], record: dict
+) -> None:
     import torch
 
     from ..io import atomic_save, copy_files

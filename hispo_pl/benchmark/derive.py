@@ -197,6 +197,21 @@ def _rollout_evaluation(config: dict):
 
 
 def derive_run(source: str | Path, target: str | Path, record: dict | None = None) -> StreamResults:
+    """:func:`write_derived_run` holding ``target``'s run lock, as a run holds it: two
+    launches that derive the same run at once do not write into one folder together.
+
+    Raises:
+        RunDirError: another process holds ``target``, or :func:`write_derived_run`'s."""
+    from ..resume import RunDirLock
+
+    Path(target).mkdir(parents=True, exist_ok=True)
+    with RunDirLock(target):
+        return write_derived_run(source, target, record)
+
+
+def write_derived_run(
+    source: str | Path, target: str | Path, record: dict | None = None
+) -> StreamResults:
     """Write into ``target`` the keep-last run that the finished keep-all run ``source``
     stands for: its checkpoints, ``config.yaml`` and ``task_XX.config.yaml``,
     ``progress.json``, ``results.json`` (R re-measured below the diagonal, PER, BWT, MEM and
