@@ -109,8 +109,12 @@ class HispoCLI(LightningCLI):
         flag = unknown_flag(message)
         if flag is None or args is None:
             return known
+        # a look at the keys, never an answer: without --print_config, and without the request
+        # the failed parse left on the parser (jsonargparse would print the config and exit 0)
+        rest = [a for a in without_flag(list(args), flag) if a.split("=")[0] != "--print_config"]
+        vars(parser).pop("print_config", None)
         try:
-            config = parser.parse_args(without_flag(list(args), flag))
+            config = parser.parse_args(rest)
         except ArgumentError:
             return known
         return known + dotted_flags(config.get("fit", config).as_dict())

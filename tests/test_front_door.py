@@ -211,6 +211,14 @@ def test_an_unknown_flag_is_one_line_with_the_closest_one(flag, suggestion, caps
     assert f"unknown flag {flag}; did you mean {suggestion}?" in err
 
 
+def test_print_config_refuses_an_unknown_flag_as_a_run_does(capsys):
+    args = ["fit", "--config", str(ROOT / "configs/quickstart.yaml"), "--trainer.max_step", "5"]
+    assert main([*args, "--print_config"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1, err
+    assert "unknown flag --trainer.max_step; did you mean --trainer.max_steps?" in err
+
+
 @pytest.mark.parametrize(
     "argv, said",
     [
