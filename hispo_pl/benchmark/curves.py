@@ -153,10 +153,13 @@ def curves_markdown(study: CurveStudy, curves: Mapping[tuple[str, str], MeanCurv
 
 
 def curves_figure(study: CurveStudy, curves: Mapping[tuple[str, str], MeanCurve]):
-    """One panel per task: success against steps, a line per setting with its seeds' spread."""
+    """One panel per task: success against steps, a line per setting with its seeds' spread,
+    and the budget B once every task of the budget's setting has runs."""
     from matplotlib.figure import Figure
 
     tasks = [t for t in study.tasks if any(t == k[1] for k in curves)]
+    chosen = {t: c for (s, t), c in curves.items() if s == study.budget_setting}
+    budget = choose_budget(chosen, study.tolerance) if set(chosen) == set(study.tasks) else None
     fig = Figure(figsize=(4.2 * max(len(tasks), 1), 3.4), layout="constrained")
     axes = fig.subplots(1, max(len(tasks), 1), squeeze=False)[0]
     for ax, task in zip(axes, tasks, strict=False):
@@ -169,12 +172,15 @@ def curves_figure(study: CurveStudy, curves: Mapping[tuple[str, str], MeanCurve]
             hi = [m + s for m, s in zip(curve.mean, curve.std, strict=True)]
             ax.plot(x, curve.mean, marker="o", ms=3, color=f"C{i}", label=setting)
             ax.fill_between(x, lo, hi, color=f"C{i}", alpha=0.2, lw=0)
+        if budget is not None:
+            ax.axvline(budget / 1000, color="grey", ls="--", lw=1)
+            ax.text(budget / 1000, 3, f" B = {budget // 1000}k", color="grey", fontsize=8)
         ax.set_title(task)
         ax.set_xlabel("training steps (thousands)")
         ax.set_ylim(-2, 102)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("success % (mean ± std over seeds)")
-    axes[0].legend(loc="lower right")
+    axes[0].legend(loc="center right")
     return fig
 
 
