@@ -25,6 +25,17 @@ def set_num_threads(n: int) -> None:
         torch.set_num_threads(n)
 
 
+def add_num_threads_argument(parser: argparse.ArgumentParser) -> None:
+    """``--num_threads``, 1 as in fit's configs: on shared cores one thread per process often
+    wins (docs/performance.md)."""
+    parser.add_argument(
+        "--num_threads",
+        type=int,
+        default=1,
+        help="torch.set_num_threads (default 1, as fit's configs; 0: torch's choice)",
+    )
+
+
 def data_main(argv: list[str]) -> int:
     from .data.datasets import (
         dataset_problem,
@@ -169,7 +180,7 @@ def evaluate_main(argv: list[str]) -> int:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--num_threads", type=int, default=0)
+    add_num_threads_argument(parser)
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
@@ -250,7 +261,7 @@ def render_main(argv: list[str]) -> int:
     )
     parser.add_argument("--seed", type=int, default=0, help="rollouts' start and goal draws")
     parser.add_argument("--columns", type=int, default=None, help="panels per row (default 4)")
-    parser.add_argument("--num_threads", type=int, default=0)
+    add_num_threads_argument(parser)
     args = parser.parse_args(argv)
     set_num_threads(args.num_threads)
     if args.dataset and args.ckpt:

@@ -220,6 +220,24 @@ def test_print_config_refuses_an_unknown_flag_as_a_run_does(capsys):
 
 
 @pytest.mark.parametrize(
+    "argv",
+    [
+        ["evaluate", "--ckpt", "no.ckpt", "--task", "pointmaze-umaze"],
+        ["render", "pointmaze-umaze", "--out", "x.png", "--episodes", "0"],
+    ],
+    ids=["evaluate", "render"],
+)
+def test_evaluate_and_render_use_one_thread_unless_told(argv, monkeypatch):
+    """As fit's configs: one torch thread by default, set before anything else is checked."""
+    import hispo_pl.commands
+
+    asked: list[int] = []
+    monkeypatch.setattr(hispo_pl.commands, "set_num_threads", asked.append)
+    assert main(argv) == 2 and main([*argv, "--num_threads", "0"]) == 2
+    assert asked == [1, 0]
+
+
+@pytest.mark.parametrize(
     "argv, said",
     [
         (["evaluate", "--ckp", "x.ckpt", "--task", "pointmaze-umaze"], "did you mean --ckpt?"),
