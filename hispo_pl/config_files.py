@@ -110,6 +110,22 @@ def config_path(name: str, root: Path | None = None) -> Path:
     raise UserError(f"{name!r} names several configs ({', '.join(matches)}); give one of them")
 
 
+def check_copy_destination(dest: Path) -> None:
+    """Refuse a destination ``config copy`` must not fill: a file, a name that looks like one
+    (``my.yaml`` would become a folder of configs), a folder with files in it.
+
+    Raises:
+        UserError: naming the destination, and what to give instead."""
+    if dest.suffix in (".yaml", ".yml") or (dest.exists() and not dest.is_dir()):
+        what = "is a file" if dest.exists() else "names a file"
+        raise UserError(
+            f"{dest} {what}; config copy fills a folder with every shipped config: name a new "
+            f"folder (hispo-pl config show NAME > {dest} writes one config)"
+        )
+    if dest.exists() and any(dest.iterdir()):
+        raise UserError(f"{dest} exists and is not empty; choose a new folder")
+
+
 def config_main(argv: list[str]) -> int:
     """``hispo-pl config list|show NAME|copy DEST``."""
     parser = VerbParser(
@@ -130,10 +146,7 @@ def config_main(argv: list[str]) -> int:
     elif args.cmd == "show":
         print(config_path(args.name, root).read_text(), end="")
     else:
-        if args.dest.exists() and not args.dest.is_dir():
-            raise UserError(f"{args.dest} is a file; config copy fills a folder: name a new one")
-        if args.dest.exists() and any(args.dest.iterdir()):
-            raise UserError(f"{args.dest} exists and is not empty; choose a new folder")
+        check_copy_destination(args.dest)
         make_folder(args.dest)
         for name in config_names(root):
             target = args.dest / f"{name}.yaml"

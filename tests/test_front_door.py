@@ -237,6 +237,16 @@ def test_evaluate_and_render_use_one_thread_unless_told(argv, monkeypatch):
     assert asked == [1, 0]
 
 
+@pytest.mark.parametrize("dest", ["my.yaml", "my.yml"])
+def test_config_copy_refuses_a_destination_named_like_a_file(dest, tmp_path, capsys):
+    """``config copy my.yaml`` would make a folder of configs named my.yaml."""
+    target = tmp_path / dest
+    assert main(["config", "copy", str(target)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{target} names a file; config copy fills a folder" in err
+    assert not target.exists()
+
+
 @pytest.mark.parametrize(
     "argv, said",
     [
