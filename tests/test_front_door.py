@@ -247,6 +247,20 @@ def test_config_copy_refuses_a_destination_named_like_a_file(dest, tmp_path, cap
     assert not target.exists()
 
 
+def test_a_config_that_says_make_demo_runs_it_is_the_demo():
+    """A config's header names the command ``make demo`` runs only where it is that command."""
+    recipe = (ROOT / "Makefile").read_text().split("\ndemo:", 1)[1]
+    demo = re.search(r"hispo-pl (fit .*)", recipe).group(1).strip()
+    claim = re.compile(r"^#\s+hispo-pl (fit .*?)\s+\((?:what `make demo` runs|make demo)\)$")
+    claimed = [
+        m.group(1)
+        for path in sorted((ROOT / "configs").rglob("*.yaml"))
+        for line in path.read_text().splitlines()
+        if (m := claim.match(line))
+    ]
+    assert claimed == [demo]
+
+
 @pytest.mark.parametrize(
     "argv, said",
     [
