@@ -156,6 +156,11 @@ def test_the_grid_trains_a_tolerance_sweep_as_a_tree(tiny_umaze, tmp_path, capsy
         assert saved_setting(run.config_file, "eps_low") == value
         assert run.stream_results().R[:shared] == first.stream_results().R[:shared]
     assert branch.shared_tasks(decisions, _both(20.0), len(STREAM)) == 1
+    # the sweeps report counts what the tree trained, of the tasks its runs hold
+    copied = sum(branch.shared_tasks(decisions, _both(v), len(STREAM)) for v in values[1:])
+    sweeps = (root / "grid-tree" / "sweeps.md").read_text()
+    held = len(values) * len(STREAM)
+    assert f"| {held - copied} of {held} |" in sweeps
     # the chosen value's seed 0 is its sweep run; nothing is left to run
     assert cli_main([*args, "--dry-run"]) == 0
     assert "pointmaze-1: 4 done, 0 to run" in capsys.readouterr().out

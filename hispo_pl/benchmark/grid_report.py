@@ -349,6 +349,20 @@ def sweep_per(root: Path, stream: str, label: str, seed: int) -> float | None:
     return float(run.stream_results().metrics["PER"]) if run.has_results() else None
 
 
+def tree_tasks(root: Path, stream: str, sweep) -> str:
+    """A tolerance tree's cost on one stream: the tasks its committed runs trained, of the
+    tasks they hold (a branched run's ``run.json`` says how many it copied)."""
+    trained = held = 0
+    for value in sweep.values:
+        run = RunDir(Path(root) / stream / SWEEPS_DIR / sweep.label(value) / f"seed{sweep.seed}")
+        if not run.has_results():
+            continue
+        tasks = len(run.stream_results().stream)
+        copied = int(run.read_run_record().get("branched_tasks") or 0)
+        trained, held = trained + tasks - copied, held + tasks
+    return f"{trained} of {held}" if held else ""
+
+
 def sweeps_markdown(grid: Grid, root: Path) -> str:
     """Each sweep's PER per stream and value (on its seed); the chosen value in bold. Empty
     for a grid without sweeps."""
@@ -358,10 +372,11 @@ def sweeps_markdown(grid: Grid, root: Path) -> str:
         return ""
     lines = [f"# Sweeps: grid {grid.name}\n"]
     for method, sweep in grid.sweeps.items():
+        tree = " | tasks trained (of all values')" if sweep.branch else ""
         lines += [
             f"### {method}: {sweep.name} (`--{sweep.key}`), seed {sweep.seed}\n",
-            "| stream | " + " | ".join(f"{v:g}" for v in sweep.values) + " | chosen |",
-            "|---|" + "---:|" * (len(sweep.values) + 1),
+            "| stream | " + " | ".join(f"{v:g}" for v in sweep.values) + f" | chosen{tree} |",
+            "|---|" + "---:|" * (len(sweep.values) + 1 + bool(tree)),
         ]
         for stream in grid.streams:
             pers = {v: sweep_per(root, stream, sweep.label(v), sweep.seed) for v in sweep.values}
@@ -370,14 +385,24 @@ def sweeps_markdown(grid: Grid, root: Path) -> str:
                 "" if p is None else (f"**{100 * p:.1f}**" if v == best else f"{100 * p:.1f}")
                 for v, p in pers.items()
             ]
-            lines.append(
-                f"| {stream} | " + " | ".join(cells) + f" | {'' if best is None else f'{best:g}'} |"
-            )
+            if sweep.branch:
+                cells.append(
+                    f"{'' if best is None else f'{best:g}'} | {tree_tasks(root, stream, sweep)}"
+                )
+            else:
+                cells.append("" if best is None else f"{best:g}")
+            lines.append(f"| {stream} | " + " | ".join(cells) + " |")
         lines.append("")
     legend = (
         "PER ×100 of each value on one seed; the chosen value (the best PER, the first listed "
         "on a tie) is what every seed of the method runs at.\n"
     )
+    if any(sweep.branch for sweep in grid.sweeps.values()):
+        legend += (
+            "A tree's runs (a sweep of the pruning tolerance) share the tasks before their first "
+            "differing decision: its last column counts the tasks they trained, of all the tasks "
+            "their runs hold.\n"
+        )
     return "\n".join(lines) + legend
 
 
