@@ -249,6 +249,21 @@ BENCH_TINY_OVERRIDES = [
 ]
 
 
+def grid_config_dir(tmp_path: Path, name: str, grid: dict) -> Path:
+    """A config dir with the pointmaze-1 stream, the grid's method configs (copies of the
+    shipped ones) and the grid itself as ``grids/<name>.yaml``."""
+    import yaml
+
+    configs = tmp_path / "configs"
+    for sub in ("methods", "streams", "grids"):
+        (configs / sub).mkdir(parents=True, exist_ok=True)
+    shutil.copy(ROOT / "configs/streams/pointmaze-1.yaml", configs / "streams")
+    for method in grid["methods"]:
+        shutil.copy(ROOT / f"configs/methods/{method}.yaml", configs / "methods")
+    (configs / "grids" / f"{name}.yaml").write_text(yaml.safe_dump(grid))
+    return configs
+
+
 def benchmark_config_dir(tmp_path: Path, methods: list[str]) -> Path:
     """A config dir with the pointmaze-1 stream and copies of the HiSPO method config."""
     configs = tmp_path / "configs"

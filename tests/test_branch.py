@@ -7,13 +7,17 @@ it agrees on every task and is copied whole."""
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import pytest
 import torch
-import yaml
-from helpers import BENCH_TINY_OVERRIDES, fit_tiny_stream, nested_equal, without_times
+from helpers import (
+    BENCH_TINY_OVERRIDES,
+    fit_tiny_stream,
+    grid_config_dir,
+    nested_equal,
+    without_times,
+)
 
 from hispo_pl.benchmark import branch
 from hispo_pl.benchmark.configs import saved_setting
@@ -107,11 +111,6 @@ def test_a_branch_refuses_tasks_that_would_decide_otherwise_or_a_used_directory(
 
 
 def _tree_grid_configs(tmp_path: Path, values: list[float]) -> Path:
-    configs = tmp_path / "configs"
-    for sub in ("methods", "streams", "grids"):
-        (configs / sub).mkdir(parents=True)
-    shutil.copy(ROOT / "configs/streams/pointmaze-1.yaml", configs / "streams")
-    shutil.copy(ROOT / "configs/methods/hispo.yaml", configs / "methods")
     grid = {
         "streams": ["pointmaze-1"],
         "methods": ["hispo"],
@@ -123,8 +122,7 @@ def _tree_grid_configs(tmp_path: Path, values: list[float]) -> Path:
                       "branch": True}
         },
     }  # fmt: skip
-    (configs / "grids/tree.yaml").write_text(yaml.safe_dump(grid))
-    return configs
+    return grid_config_dir(tmp_path, "tree", grid)
 
 
 def test_the_grid_trains_a_tolerance_sweep_as_a_tree(tiny_umaze, tmp_path, capsys):

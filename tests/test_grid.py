@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from helpers import BENCH_TINY, BENCH_TINY_OVERRIDES
+from helpers import BENCH_TINY, BENCH_TINY_OVERRIDES, grid_config_dir
 
 from hispo_pl.benchmark import grid as gr
 from hispo_pl.benchmark import grid_report as gp
@@ -181,11 +181,6 @@ def test_committed_runs_of_an_older_stream_or_another_value_are_not_done(tmp_pat
 
 
 def _tiny_grid_configs(tmp_path: Path) -> Path:
-    configs = tmp_path / "configs"
-    for sub in ("methods", "streams", "grids"):
-        (configs / sub).mkdir(parents=True)
-    shutil.copy(ROOT / "configs/streams/pointmaze-1.yaml", configs / "streams")
-    shutil.copy(ROOT / "configs/methods/scn.yaml", configs / "methods")
     grid = {
         "streams": ["pointmaze-1"],
         "methods": ["scn"],
@@ -194,8 +189,7 @@ def _tiny_grid_configs(tmp_path: Path) -> Path:
         "extra": BENCH_TINY_OVERRIDES,
         "sweeps": {"scn": {"key": "data.batch_size", "name": "batch", "values": [32, 64]}},
     }
-    (configs / "grids/tiny.yaml").write_text(yaml.safe_dump(grid))
-    return configs
+    return grid_config_dir(tmp_path, "tiny", grid)
 
 
 def test_grid_end_to_end_exports_derives_and_resumes(tiny_umaze, tmp_path, capsys):
