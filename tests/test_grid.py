@@ -336,3 +336,13 @@ def test_cost_counts_a_seed_copied_from_its_sweep_once(tmp_path):
         row for row in gp.cost_markdown(grid, gp.Committed(root)).splitlines() if "| l2 |" in row
     ]
     assert line.startswith(f"| l2 | 7 | {minutes / 60:.1f} | {minutes / 7:.1f} |")
+
+
+def test_beside_paper_of_a_grid_shows_its_streams_and_those_with_runs(tmp_path):
+    shutil.copytree(ROOT / "docs/results/pointmaze-1/frz", tmp_path / "pointmaze-1/frz")
+    text = gp.beside_paper_markdown(gp.Committed(tmp_path), ["pointmaze-1", "pointmaze-2"])
+    assert "### pointmaze-2 (the paper's Table 7)" in text  # the grid's, not run yet
+    assert "### videogame-1" not in text and "AntMaze ablation" not in text
+    shutil.copytree(ROOT / "docs/results/antmaze-1/hispo", tmp_path / "antmaze-1/hispo")
+    text = gp.beside_paper_markdown(gp.Committed(tmp_path), ["pointmaze-1", "pointmaze-2"])
+    assert "### antmaze-1 (the paper's Table 8)" in text and "AntMaze ablation" in text

@@ -227,11 +227,15 @@ def _ours(row: MethodRow | None, name: str) -> str:
     return f"{metric.format(value[0])} ± {metric.format(value[1])}"
 
 
-def beside_paper_markdown(committed: Committed) -> str:
+def beside_paper_markdown(committed: Committed, streams: Sequence[str] | None = None) -> str:
     """The paper's per-stream tables (its Tables 7–9) and its AntMaze ablation (Table 2) with
-    our committed figures in the column next to each of its own; empty where not run."""
+    our committed figures in the column next to each of its own; empty where not run. With
+    ``streams`` (a grid's), a table of another stream is shown only where it has runs."""
     lines = ["# Beside the paper\n"]
-    for stream, table in paper.PER_STREAM.items():
+    shown = [
+        s for s in paper.PER_STREAM if streams is None or s in streams or committed.measured(s)
+    ]
+    for stream, table in ((s, paper.PER_STREAM[s]) for s in shown):
         ours = committed.methods(stream)
         table_no = {"pointmaze": 7, "antmaze": 8, "videogame": 9}[stream.split("-")[0]]
         lines += [
@@ -253,6 +257,8 @@ def beside_paper_markdown(committed: Committed) -> str:
                 lines += ["", derived_footnote(method, derived, len(row.seeds))]
         lines.append("")
     antmaze = [run for s in ("antmaze-1", "antmaze-2") for run in committed.measured(s)]
+    if streams is not None and not antmaze and not {"antmaze-1", "antmaze-2"} & set(streams):
+        return "\n".join(lines) + _legend_without_ablation()
     lines += [
         "### AntMaze ablation (the paper's Table 2)\n",
         "| method | runs here | PER paper | PER here | MEM paper | MEM here |",
@@ -278,6 +284,15 @@ def beside_paper_markdown(committed: Committed) -> str:
         "the table of differences on this page.\n"
     )
     return "\n".join(lines) + legend
+
+
+def _legend_without_ablation() -> str:
+    """The beside-the-paper legend of a grid with no AntMaze run (no Table 2 to set beside)."""
+    return (
+        "\nThe paper's figures as printed (mean ± std over three seeds; FZ is frz). Ours: mean "
+        "± std (population) over the seeds committed under this grid's results folder (one "
+        "seed: its value), success ×100.\n"
+    )
 
 
 def _table2_disagrees() -> str:
@@ -494,7 +509,7 @@ def grid_reports(grid: Grid, root: Path) -> tuple[dict[str, str], list[Aggregate
     texts = {
         "summary.md": summary_markdown(committed),
         "aggregate.md": aggregate_markdown(grid, rows),
-        "beside-paper.md": beside_paper_markdown(committed),
+        "beside-paper.md": beside_paper_markdown(committed, grid.streams),
         "sweeps.md": sweeps_markdown(grid, root),
         "cost.md": cost_markdown(grid, committed),
     }
