@@ -393,3 +393,12 @@ def test_the_acting_example_runs_as_written(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="pass velocity="):  # why the example passes it
         obs, pos, goal = torch.zeros(1, 4), torch.zeros(1, 2), torch.ones(1, 2)
         GoalConditionedBC.from_checkpoint_file(str(run / "task_02.ckpt")).act(obs, pos, goal)
+
+
+def test_the_readmes_test_command_is_the_makefiles():
+    """The README names the pytest command `make test` runs, with its default workers."""
+    makefile = (ROOT / "Makefile").read_text()
+    workers = re.search(r"^TEST_WORKERS \?= (\d+)", makefile, re.M).group(1)
+    recipe = re.search(r"^test: .*\n\t\$\(BIN\)/python -m (pytest[^\n]*)", makefile, re.M).group(1)
+    command = recipe.replace("$(TEST_WORKERS)", workers)
+    assert f"`{command}`" in (ROOT / "README.md").read_text()
