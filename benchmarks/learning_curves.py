@@ -25,6 +25,7 @@ import sys
 from pathlib import Path
 
 from hispo_pl.benchmark.curves import CURVES_FILE, write_curves_report
+from hispo_pl.io import copy_files, real_folder
 from hispo_pl.tasks import parse_task
 
 
@@ -44,17 +45,13 @@ EXPORTED = ("result.json", "config.yaml", "run.json")
 
 def export_runs(out: Path, dest: Path) -> list[Path]:
     """Copy the small files of every finished single-task run under ``out/runs`` to the same
-    place under ``dest/runs`` (plain files only: a link is not followed)."""
+    place under ``dest/runs``, as every export does (a link at either end is not followed)."""
     written = []
     for result in sorted((Path(out) / "runs").glob("*/seed*/result.json")):
         source = result.parent
-        target = Path(dest) / source.relative_to(out)
-        target.mkdir(parents=True, exist_ok=True)
-        for name in EXPORTED:
-            path = source / name
-            if path.is_file() and not path.is_symlink():
-                (target / name).write_bytes(path.read_bytes())
-                written.append(target / name)
+        target = real_folder(Path(dest) / source.relative_to(out), dest)
+        pairs = [(source / n, target / n) for n in EXPORTED if (source / n).is_file()]
+        written += copy_files(pairs)
     return written
 
 

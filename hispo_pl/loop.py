@@ -204,6 +204,7 @@ class ContinualLoop:
         fit_interruptibly(trainer, self.module, datamodule, ckpt_path=resume, weights_only=True)
         phases = task_phases(time.perf_counter() - fit_start, self.module.task_record.seconds)
         row = self.module.task_record.success_row  # RolloutEvaluation's, at the task's end
+        memory_now = self._memory()  # after the task's decisions
         if row is None:
             raise RuntimeError(
                 "the stream needs a RolloutEvaluation callback to measure R after each task"
@@ -216,7 +217,7 @@ class ContinualLoop:
                 decided = self.run_dir.decisions()
                 subspaces = list(dict.fromkeys(d.subspace for d in decided))
                 self._layout_logged = True
-            log_task_end(self._loggers, k, row, picture, subspaces, self._memory())
+            log_task_end(self._loggers, k, row, picture, subspaces, memory_now)
         atomic_save(
             self.run_dir.checkpoint(k), lambda tmp: trainer.save_checkpoint(tmp, weights_only=False)
         )
@@ -224,7 +225,7 @@ class ContinualLoop:
             self.run_dir.write_task_config(k, self.config_text)
         memory = progress.setdefault("mem_per_task", [])
         memory += [None] * (len(progress["rows"]) - len(memory))  # tasks of an older run
-        memory.append(self._memory())
+        memory.append(memory_now)
         progress["rows"].append(list(row))
         elapsed = time.perf_counter() - start
         progress["wall_time_s"].append(elapsed)

@@ -25,6 +25,9 @@ def test_interval_rules():
 class _Empty:
     """Committed runs of a protocol with none of its streams run yet."""
 
+    def __init__(self):
+        self.cache = {}
+
     def measured(self, stream):
         return []
 

@@ -64,14 +64,10 @@ class Stats:
 def method_stats(committed: Committed, streams: Sequence[str], method: str) -> Stats | None:
     """``method`` over ``streams`` (None unless every stream has a run of it), once per
     protocol's committed runs. The IQM takes the seeds every stream has."""
-    memo = _MEMO.setdefault(id(committed), (committed, {}))[1]
-    key = (tuple(streams), method)
-    if key not in memo:
-        memo[key] = _method_stats(committed, streams, method)
-    return memo[key]
-
-
-_MEMO: dict[int, tuple[Committed, dict]] = {}  # the committed runs kept alive beside their stats
+    key = ("claims", tuple(streams), method)
+    if key not in committed.cache:
+        committed.cache[key] = _method_stats(committed, streams, method)
+    return committed.cache[key]
 
 
 def _method_stats(committed: Committed, streams: Sequence[str], method: str) -> Stats | None:

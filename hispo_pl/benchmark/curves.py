@@ -108,12 +108,20 @@ def load_curves(folder: Path, study: CurveStudy) -> dict[tuple[str, str], MeanCu
     out = {}
     for setting in study.settings:
         for task in study.tasks:
-            runs = sorted((Path(folder) / "runs" / f"{setting}-{task}").glob("seed*/result.json"))
-            curves = [RunDir(p.parent).read_result().get("curve") for p in runs]
-            curves = [c for c in curves if c]
+            curves = [curve for _, curve in _run_curves(folder, setting, task)]
             if curves:
                 out[(setting, task)] = mean_curve(curves)
     return out
+
+
+def _run_curves(folder: Path, setting: str, task: str) -> list[tuple[int, list[dict]]]:
+    """(seed, curve) of every finished run of ``setting`` on ``task`` that recorded one."""
+    found = []
+    for path in sorted((Path(folder) / "runs" / f"{setting}-{task}").glob("seed*/result.json")):
+        curve = RunDir(path.parent).read_result().get("curve")
+        if curve:
+            found.append((int(path.parent.name.removeprefix("seed")), curve))
+    return found
 
 
 def _cell(curve: MeanCurve, i: int) -> str:
@@ -188,10 +196,8 @@ def _points(folder: Path, study: CurveStudy):
     """(setting, task, seed, point) of every evaluation of every finished run, in order."""
     for setting in study.settings:
         for task in study.tasks:
-            results = sorted((folder / "runs" / f"{setting}-{task}").glob("seed*/result.json"))
-            for path in results:
-                seed = int(path.parent.name.removeprefix("seed"))
-                for point in RunDir(path.parent).read_result().get("curve") or []:
+            for seed, curve in _run_curves(folder, setting, task):
+                for point in curve:
                     yield setting, task, seed, point
 
 

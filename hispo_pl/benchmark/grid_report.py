@@ -40,6 +40,7 @@ class Committed:
         self.root = Path(root)
         self._measured: dict[str, list[tuple[RunRecord, dict, str | None]]] = {}
         self._rows: dict[str, dict[str, MethodRow]] = {}
+        self.cache: dict = {}  # what other reports compute from these runs, once (claims' stats)
 
     def measured(self, stream: str) -> list[tuple[RunRecord, dict, str | None]]:
         """Each finished run of ``stream`` with its metrics and FWT reference
