@@ -1,11 +1,14 @@
-"""Pure decision rules of HiSPO, kept apart from the hooks that apply them."""
+"""Pure decision rules of HiSPO, kept apart from the hooks that apply them. Torch is imported
+by the rules that draw candidates, so the benchmark's reports (which read the loss rules)
+start without it."""
 
 from __future__ import annotations
 
-import torch
-from torch import Tensor
+from typing import TYPE_CHECKING
 
-from .nn.simplex import sample_dirichlet
+if TYPE_CHECKING:
+    import torch
+    from torch import Tensor
 
 
 def keep_previous(l_prev: float, l_curr: float, eps: float) -> bool:
@@ -45,6 +48,10 @@ def previous_subspace_candidates(
     """Candidate weights over the previous anchors (all but the newest, which gets 0):
     Dirichlet(1) draws, shape [n, n_anchors]. With one previous anchor the only point is
     [1, 0, ...], returned once."""
+    import torch
+
+    from .nn.simplex import sample_dirichlet
+
     if n_anchors < 2:
         raise ValueError("the previous subspace needs a newest anchor to leave out")
     if n_anchors == 2:
@@ -60,6 +67,10 @@ def extended_subspace_candidates(
     the trained weights first, then the newest anchor alone, then ``n`` Dirichlet(1) draws;
     shape [n + 2, K]. Training mixes the new anchor at weight ~1/K at first and the scores move
     slowly, so on short budgets points nearer the new anchor often fit the task better."""
+    import torch
+
+    from .nn.simplex import sample_dirichlet
+
     k = trained.shape[-1]
     vertex = torch.zeros(1, k, device=trained.device)
     vertex[0, -1] = 1.0
