@@ -79,10 +79,16 @@ class OptimConfig:
         lr: learning rate (the house default is faster than the paper's 3e-4 at our step
             budgets, docs/method.md).
         schedule: ``cosine`` anneals it over ``trainer.max_steps``; ``constant`` keeps it.
+        captured: run each training step as one program over static buffers (losses,
+            backward, fused Adam and the schedule, no host synchronisation per step), captured
+            once per task as a CUDA graph and replayed on CUDA, run eagerly elsewhere
+            (:mod:`hispo_pl.nn.program`); off: the usual step. With ``--data.group N`` one
+            Trainer step trains N batches (docs/performance.md).
     """
 
     lr: float = 1e-3
     schedule: Schedule = "cosine"
+    captured: bool = False
 
     @classmethod
     def of(cls, value: OptimConfig | Mapping | None) -> OptimConfig:

@@ -28,25 +28,29 @@ from .datasets import (
     open_dataset,
 )
 from .generation import generate_missing
-from .sampler import HERConfig, HERSampler, Horizon, MixedSampler, Strategy
+from .sampler import DeviceHERSampler, HERConfig, HERSampler, Horizon, MixedSampler, Strategy
 
 
 class _Batches(IterableDataset):
-    """An endless-looking stream of ready-made batches (``steps`` per epoch)."""
+    """An endless-looking stream of ready-made batches (``steps`` per epoch), or of groups of
+    ``group`` batches (``[group, B, ...]`` tensors) when ``group`` > 1."""
 
-    def __init__(self, sampler: HERSampler, steps: int):
-        self.sampler, self.steps = sampler, steps
+    def __init__(self, sampler: HERSampler, steps: int, group: int = 1):
+        self.sampler, self.steps, self.group = sampler, steps, group
 
     def __len__(self) -> int:
         return self.steps
 
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
         for _ in range(self.steps):
-            yield self.sampler.sample()
+            yield (
+                self.sampler.sample() if self.group == 1 else self.sampler.sample_group(self.group)
+            )
 
 
 DEFAULT_TASK = "pointmaze-umaze-N[500]"
 Split = Literal["train", "heldout"]
+Sampling = Literal["host", "device"]
 
 
 def _input_choice(flag: str, value: str, choices: dict) -> str:
@@ -113,6 +117,14 @@ class TaskDataModule(L.LightningDataModule):
         transitions: batches also hold ``next_observation`` and ``next_position`` (the next
             row of the episode), for methods that learn a critic (CSP); off by default, so
             other methods' batches are unchanged.
+        sampler: where training batches are drawn: ``host`` (numpy on the CPU, copied to the
+            run's device each step: the committed runs' batches) or ``device`` (torch on the
+            run's device, from a generator seeded with ``seed``: nothing is copied from the
+            host per step; the same distributions, another random stream). Task-end callbacks'
+            batches are drawn on the host either way.
+        group: batches per Trainer step, served as one group of ``[group, B, ...]`` tensors
+            that a captured step (``--model.init_args.optim.captured true``) trains on as
+            ``group`` updates; 1: one batch per step. ``steps_per_epoch`` counts groups.
     """
 
     def __init__(
@@ -133,8 +145,15 @@ class TaskDataModule(L.LightningDataModule):
         transitions: bool = False,
         low_inputs: Literal["family", "observation", "goal", "subgoal"] = "family",
         high_inputs: Literal["family", "observation", "goal"] = "family",
+        sampler: Sampling = "host",
+        group: int = 1,
     ):
         super().__init__()
+        if sampler not in ("host", "device"):
+            raise ValueError(f"--data.sampler must be host or device, got {sampler!r}")
+        if group < 1:
+            raise ValueError(f"--data.group must be >= 1 (batches per Trainer step), got {group}")
+        self.sampling, self.group = sampler, group
         if not 0.0 <= holdout < 1.0:
             raise ValueError(
                 f"--data.holdout must be in [0, 1) (a share of episodes), got {holdout}"
@@ -332,11 +351,30 @@ class TaskDataModule(L.LightningDataModule):
                 f"{family.action_dim}, collected in {self.task.gym_id} or an env like it"
             )
 
-    def _sampler(self, data: EpisodeArrays, her: HERConfig, batch_size: int, seed: int):
+    def _sampler(
+        self,
+        data: EpisodeArrays,
+        her: HERConfig,
+        batch_size: int,
+        seed: int,
+        device: torch.device | None = None,
+    ):
+        """A host sampler, or one on ``device`` where given."""
         step = self.task.env_family.step_seconds
+        if device is not None:
+            return DeviceHERSampler(
+                data, her, batch_size, seed, step, self.transitions, device=device
+            )
         return HERSampler(
             data, her, batch_size, seed=seed, step_seconds=step, transitions=self.transitions
         )
+
+    def _training_device(self) -> torch.device | None:
+        """Where training batches are drawn: the run's device with ``sampler: device``."""
+        if self.sampling != "device":
+            return None
+        trainer = self.trainer
+        return trainer.strategy.root_device if trainer is not None else torch.device("cpu")
 
     def fixed_batches(
         self,
@@ -354,11 +392,13 @@ class TaskDataModule(L.LightningDataModule):
         return [{k: v.to(device) for k, v in sampler.sample().items()} for _ in range(n)]
 
     def train_dataloader(self) -> DataLoader:
-        sampler = self._sampler(self.splits["train"], self.her, self.batch_size, self.seed)
+        device = self._training_device()
+        sampler = self._sampler(self.splits["train"], self.her, self.batch_size, self.seed, device)
         if self.replayed:
             earlier = [
-                self._sampler(data, her, self.batch_size, self.seed + 1 + k)
+                self._sampler(data, her, self.batch_size, self.seed + 1 + k, device)
                 for k, (data, her) in enumerate(self.replayed)
             ]
             sampler = MixedSampler([sampler, *earlier], self.batch_size)
-        return DataLoader(_Batches(sampler, self.steps_per_epoch), batch_size=None, num_workers=0)
+        batches = _Batches(sampler, self.steps_per_epoch, self.group)
+        return DataLoader(batches, batch_size=None, num_workers=0)

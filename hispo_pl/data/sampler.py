@@ -132,6 +132,109 @@ class HERSampler:
             batch["next_position"] = self._pos[i + 1]
         return batch
 
+    def sample_group(self, count: int) -> dict[str, torch.Tensor]:
+        """``count`` batches drawn one after the other, stacked: ``[count, B, ...]`` tensors,
+        the batches ``count`` calls of :meth:`sample` give."""
+        return stack_batches([self.sample() for _ in range(count)])
+
+
+class DeviceHERSampler:
+    """:class:`HERSampler`'s batches drawn on a torch device: the episodes live there, and the
+    rows, the relabelling offsets and jitters are drawn there by torch, from a generator of
+    its own seeded with ``seed`` (as the host sampler's numpy generator is), so a step copies
+    nothing from the host.
+
+    Same keys, shapes and distributions as :class:`HERSampler` (``tests/test_sampler.py``
+    compares the two), but another random stream: a run that samples on the device draws
+    other batches than one that samples on the host.
+    """
+
+    def __init__(
+        self,
+        data: EpisodeArrays,
+        cfg: HERConfig,
+        batch_size: int = 1024,
+        seed: int = 0,
+        step_seconds: float = 1.0,
+        transitions: bool = False,
+        device: torch.device | str = "cpu",
+    ):
+        if cfg.strategy not in ("exponential", "uniform", "geometric"):
+            raise ValueError(f"unknown HER strategy {cfg.strategy!r}")
+        if cfg.goal_horizon == "segment" and data.segment_end is None:
+            raise ValueError("goal_horizon='segment' needs the data's segment_end")
+        self.cfg, self.batch_size, self.transitions = cfg, batch_size, transitions
+        self.device = torch.device(device)
+        self.generator = torch.Generator(device=self.device)
+        self.generator.manual_seed(seed)
+
+        def put(array, dtype: torch.dtype) -> torch.Tensor:
+            return torch.as_tensor(np.ascontiguousarray(array)).to(self.device, dtype)
+
+        self._obs = put(data.observations, torch.float32)
+        self._pos = put(data.positions, torch.float32)
+        sensed = data.positions if data.agent_positions is None else data.agent_positions
+        self._agent_pos = put(sensed, torch.float32)
+        self._act = put(data.actions, torch.float32)
+        self._end = put(data.episode_end, torch.int64)
+        horizon = data.segment_end if cfg.goal_horizon == "segment" else data.episode_end
+        self._goal_end = put(horizon, torch.int64)
+        self._index = put(data.sample_index, torch.int64)
+        first = np.ones(len(data.episode_end), dtype=bool)
+        first[1:] = data.episode_end[1:] != data.episode_end[:-1]
+        self._previous = put(np.arange(len(first)) - (~first), torch.int64)
+        self._step_seconds = step_seconds
+
+    def _draw(self, n: int, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+        return torch.empty(n, dtype=dtype, device=self.device)
+
+    def relabel(self, i: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Goal and subgoal rows of the rows ``i``, as :func:`relabel_indices` draws them."""
+        cfg, g, n = self.cfg, self.generator, len(i)
+        end = self._goal_end[i]
+        if cfg.strategy == "exponential":
+            offset = self._draw(n).exponential_(1.0 / cfg.temperature, generator=g).round_()
+        elif cfg.strategy == "geometric":
+            offset = self._draw(n).geometric_(1.0 / max(cfg.temperature, 1.0), generator=g)
+        else:  # uniform in {i..end}; float64 as numpy draws it
+            offset = self._draw(n, torch.float64).uniform_(generator=g) * (end - i + 1)
+        goal = torch.minimum(i + offset.long(), end)
+        jitter = torch.randint(-cfg.jitter, cfg.jitter + 1, (n,), generator=g, device=self.device)
+        subgoal = torch.clamp(i + cfg.waysteps + jitter, min=i, max=self._end[i])
+        return goal, subgoal
+
+    def sample(self, batch_size: int | None = None) -> dict[str, torch.Tensor]:
+        n = batch_size or self.batch_size
+        k = torch.randint(0, len(self._index), (n,), generator=self.generator, device=self.device)
+        i = self._index[k]
+        goal, subgoal = self.relabel(i)
+        sensed = self._agent_pos[i]
+        batch = {
+            "observation": self._obs[i],
+            "position": self._pos[i],
+            "agent_position": sensed,
+            "velocity": position_velocity(
+                sensed, self._agent_pos[self._previous[i]], self._step_seconds
+            ),
+            "goal": self._pos[goal],
+            "subgoal": self._pos[subgoal],
+            "action": self._act[i],
+        }
+        if self.transitions:
+            batch["next_observation"] = self._obs[i + 1]
+            batch["next_position"] = self._pos[i + 1]
+        return batch
+
+    def sample_group(self, count: int) -> dict[str, torch.Tensor]:
+        """``count`` batches in one draw: ``[count, B, ...]`` tensors."""
+        batch = self.sample(count * self.batch_size)
+        return {k: v.view(count, self.batch_size, *v.shape[1:]) for k, v in batch.items()}
+
+
+def stack_batches(batches: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
+    """Batches of equal shapes as one group: ``[len(batches), B, ...]`` tensors."""
+    return {k: torch.stack([b[k] for b in batches]) for k in batches[0]}
+
 
 def position_velocity(position, previous, step_seconds: float):
     """Velocity in goal space from two consecutive sensed positions, the same in the data and
@@ -150,7 +253,7 @@ def split_evenly(total: int, parts: int) -> list[int]:
 class MixedSampler:
     """Batches made of equal shares from several samplers (replay of earlier tasks' data)."""
 
-    def __init__(self, samplers: list[HERSampler], batch_size: int = 1024):
+    def __init__(self, samplers: list[HERSampler | DeviceHERSampler], batch_size: int = 1024):
         if not samplers:
             raise ValueError("MixedSampler needs at least one sampler")
         self.samplers, self.batch_size = samplers, batch_size
@@ -159,3 +262,7 @@ class MixedSampler:
         shares = split_evenly(batch_size or self.batch_size, len(self.samplers))
         parts = [s.sample(n) for s, n in zip(self.samplers, shares, strict=True) if n]
         return {k: torch.cat([part[k] for part in parts]) for k in parts[0]}
+
+    def sample_group(self, count: int) -> dict[str, torch.Tensor]:
+        """``count`` batches drawn one after the other, stacked: ``[count, B, ...]``."""
+        return stack_batches([self.sample() for _ in range(count)])

@@ -11,10 +11,11 @@ import torch
 from torch import Tensor, nn
 
 from ..config import BackboneConfig, OptimConfig, plain, upgrade_hparams
-from ..errors import CheckpointError, TrainingDivergedError
+from ..errors import CheckpointError, ConfigError, TrainingDivergedError
 from ..nn import fast
 from ..nn.hierarchy import Forward, HierarchicalPolicy
 from ..nn.mlp import GaussianPolicy
+from ..nn.program import ProgramOptimizer, TrainingProgram, lr_table
 from ..record import TaskRecord
 from ..rundir import task_label
 from .checkpoints import check_finite_state, check_shapes_on_meta, first_line, read_checkpoint
@@ -51,6 +52,16 @@ class GoalConditionedBC(L.LightningModule):
         self.task_index = 0  # position in a stream, set by the ContinualLoop
         self.log_prefix = ""  # e.g. "task_03/" inside a stream, so curves of tasks do not collide
         self.task_record = TaskRecord()  # what this task's callbacks found (not saved)
+        # a captured step trains in its own program: Lightning counts its updates (manual)
+        self.automatic_optimization = not self.optim_config.captured
+        self._program: TrainingProgram | None = None
+        if self.optim_config.captured and (
+            type(self).configure_optimizers is not GoalConditionedBC.configure_optimizers
+        ):
+            raise ConfigError(
+                f"--model.init_args.optim.captured: {type(self).__name__} builds its own "
+                "optimiser, which a captured step does not run; leave optim.captured off"
+            )
 
     @property
     def lr(self) -> float:
@@ -159,7 +170,14 @@ class GoalConditionedBC(L.LightningModule):
             ) from None
         return module.eval()
 
-    def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
+    def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor | None:
+        if not self.automatic_optimization:
+            return self._program_step(batch)
+        if batch["action"].dim() > 2:
+            raise ConfigError(
+                "a group of batches (--data.group above 1) trains as several updates of one "
+                "captured step: set --model.init_args.optim.captured true, or --data.group 1"
+            )
         losses = self.losses(batch)
         if not torch.isfinite(losses["loss"]):
             raise TrainingDivergedError(self._divergence_message(losses["loss"]))
@@ -182,12 +200,92 @@ class GoalConditionedBC(L.LightningModule):
         every = trainer.log_every_n_steps
         return every > 0 and ((self.global_step + 1) % every == 0 or trainer.should_stop)
 
-    def _divergence_message(self, loss: Tensor) -> str:
+    def _program_step(self, batch: dict[str, Tensor]) -> Tensor | None:
+        """The training step of ``optim.captured``: one update per batch of a group
+        (``[N, B, ...]`` tensors, ``--data.group N``; one plain batch is one update), each a
+        run of the module's :class:`~hispo_pl.nn.program.TrainingProgram` through the
+        Trainer's optimiser, so ``global_step`` and ``max_steps`` count updates. Losses are
+        read from the device only on the updates the logger writes (and a task's last)."""
+        grouped = batch["action"].dim() > 2
+        parts = [batch]
+        if grouped:  # the group's batches in turn, as views of its tensors
+            rows = zip(*(v.unbind(0) for v in batch.values()), strict=True)
+            parts = [dict(zip(batch, row, strict=True)) for row in rows]
         trainer = self._trainer
-        step = trainer.global_step + 1 if trainer is not None else "?"
+        budget = trainer.max_steps if trainer is not None else -1
+        if budget is not None and budget > 0:  # a group never trains past the budget
+            parts = parts[: max(1, budget - self.global_step)]
+        optimizer = self.optimizers()
+        for part in parts:
+            if self._program is None:  # nothing trains on this task: the step is counted
+                optimizer.step()
+                continue
+            optimizer.optimizer.load(part)
+            optimizer.step()
+            update = self.global_step - 1  # 0-based, as the logger numbers steps
+            last = budget is not None and budget > 0 and update + 1 >= budget
+            if grouped and (self._update_reaches_logger(update) or last):
+                self._write_program_losses(update, len(part["action"]))
+            elif not grouped and (self._step_after_update_reaches_logger() or last):
+                self._check_program_finite()
+                self.log_dict(
+                    {
+                        f"{self.log_prefix}train/{k}": v.clone()
+                        for k, v in self._program.losses.items()
+                    },
+                    prog_bar=True,
+                    batch_size=len(part["action"]),
+                )
+        # the last update's loss, on the device (a callback that prints it reads it then)
+        return None if self._program is None else self._program.losses["loss"].clone()
+
+    def _update_reaches_logger(self, update: int) -> bool:
+        """Whether the logger writes update ``update`` (0-based): every
+        ``log_every_n_steps`` updates, as it writes single steps."""
+        trainer = self._trainer
+        every = trainer.log_every_n_steps if trainer is not None else 1
+        return every > 0 and (update + 1) % every == 0
+
+    def _step_after_update_reaches_logger(self) -> bool:
+        """:meth:`_step_reaches_logger` asked after the update (``global_step`` counts it)."""
+        trainer = self._trainer
+        if trainer is None or trainer.fast_dev_run:
+            return True
+        return self._update_reaches_logger(self.global_step - 1) or trainer.should_stop
+
+    def _check_program_finite(self) -> None:
+        update = self._program.nonfinite_update()
+        if update is not None:
+            loss = self._program.losses["loss"]
+            raise TrainingDivergedError(self._divergence_message(loss, step=update + 1))
+
+    def _write_program_losses(self, update: int, batch_size: int) -> None:
+        """A group's update: its losses go to the loggers at its own step (Lightning writes a
+        Trainer step's values at the count of Trainer steps, here N updates each), and to
+        the progress bar."""
+        self._check_program_finite()
+        values = {f"{self.log_prefix}train/{k}": v for k, v in self._program.read_losses().items()}
+        for logger in self.loggers:
+            logger.log_metrics({**values, "epoch": self.current_epoch}, step=update)
+        self.log_dict(values, prog_bar=True, logger=False, batch_size=batch_size)
+
+    def on_train_start(self) -> None:
+        """A resumed task's program goes on from the restored update (its schedule's place)."""
+        if self._program is not None:
+            self._program.count.fill_(self.global_step)
+
+    def on_train_end(self) -> None:
+        """Release the task's captured step (its graph and buffers)."""
+        if self._program is not None:
+            self._program.release()
+
+    def _divergence_message(self, loss: Tensor, step: int | None = None) -> str:
+        trainer = self._trainer
+        if step is None:
+            step = trainer.global_step + 1 if trainer is not None else "?"
         lr = self.lr
         if trainer is not None and trainer.optimizers:
-            lr = trainer.optimizers[0].param_groups[0]["lr"]
+            lr = float(trainer.optimizers[0].param_groups[0]["lr"])
         return (
             f"training diverged: the loss is {float(loss)} at step {step} of task "
             f"{task_label(self.task_index)} (learning rate {lr:g}); training stopped and nothing "
@@ -198,12 +296,17 @@ class GoalConditionedBC(L.LightningModule):
     def configure_optimizers(self):
         params = [p for p in self.parameters() if p.requires_grad]
         if not params:  # a method that does not train on this task (FRZ after its first)
+            self._program = None
             return None
+        steps = self._trainer.max_steps if self._trainer is not None else -1
+        if self.optim_config.captured:
+            rates = lr_table(self.lr, self.optim_config.schedule, steps)
+            self._program = TrainingProgram(self.losses, params, rates, self.device)
+            return ProgramOptimizer(self._program)
         # fused: one kernel for every tensor's update (the same update as the per-tensor loop)
         opt = torch.optim.Adam(params, lr=self.lr, fused=fast.enabled())
         if fast.enabled():
             fast.retain_freed_memory()
-        steps = self._trainer.max_steps if self._trainer is not None else -1
         if self.optim_config.schedule == "constant" or steps is None or steps <= 0:
             return opt
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=steps)
