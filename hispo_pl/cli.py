@@ -48,9 +48,11 @@ from .stopping import terminate_as_interrupt  # noqa: E402
 
 def _quiet_known_warnings() -> None:
     """Silence, once for the command, third-party notices that say nothing about the user's
-    run: warnings about data loading that hispo-pl's sampler makes irrelevant, and Lightning's
-    advertising tips (litlogger, litmodels), which it logs rather than warns. (The Adroit
-    hands' notice of gymnasium-robotics is dropped where it is imported, hispo_pl.envs.)"""
+    run: warnings about data loading that hispo-pl's sampler makes irrelevant, and what
+    Lightning logs rather than warns: its advertising tips (litlogger, litmodels) and its
+    "`Trainer.fit` stopped: `max_steps=N` reached" (the budget the task's header gave). (The
+    Adroit hands' notice of gymnasium-robotics is dropped where it is imported,
+    hispo_pl.envs.)"""
     import logging
 
     for pattern in (
@@ -68,10 +70,17 @@ def _quiet_known_warnings() -> None:
 
 
 class _NoTips:
-    """A logging filter that drops Lightning's ``💡 Tip:`` lines."""
+    """A logging filter that drops Lightning's ``💡 Tip:`` lines and its notice that a fit
+    stopped at its step or epoch budget."""
+
+    SAID_NOTHING = (
+        "💡 Tip",
+        "`Trainer.fit` stopped: `max_steps=",
+        "`Trainer.fit` stopped: `max_epochs=",
+    )
 
     def filter(self, record) -> bool:
-        return not str(record.msg).lstrip().startswith("💡 Tip")
+        return not str(record.msg).lstrip().startswith(self.SAID_NOTHING)
 
 
 def main(argv: list[str] | None = None) -> int:

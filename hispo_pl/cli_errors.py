@@ -69,6 +69,45 @@ def parse_error_line(message: str, known: Iterable[str], help_hint: str = HELP) 
     return f"unknown flag {flag}{guess} ({help_hint})"
 
 
+def class_problem_line(message: str, config: Mapping | None = None) -> str | None:
+    """One line for a class of the configuration that could not be made (its package is not
+    installed, an import in it fails), from jsonargparse's message: the flag that names it,
+    the class and the reason (``--trainer.logger lightning.pytorch.loggers.MLFlowLogger
+    cannot be made: Requirement 'mlflow>=1.0.0' not met. HINT: ...``); None for another
+    message."""
+    lines = message.splitlines()
+    for i, line in enumerate(lines):
+        found = re.search(r"Problem with given class_path '([^']+)':", line)
+        if found is None:
+            continue
+        depth = len(line) - len(line.lstrip())
+        reason = []
+        for more in lines[i + 1 :]:
+            if more.strip() and len(more) - len(more.lstrip()) <= depth:
+                break
+            reason.append(more.strip())
+        class_path = found.group(1)
+        where = class_key(config, class_path) if config is not None else None
+        said = " ".join(part for part in reason if part) or "it cannot be imported"
+        return f"{f'--{where} ' if where else ''}{class_path} cannot be made: {said}"
+    return None
+
+
+def class_key(config: Mapping, class_path: str, prefix: str = "") -> str | None:
+    """The dotted key of ``config`` whose value (or one item of whose list) names
+    ``class_path``: ``trainer.logger``, ``trainer.callbacks``; None if none does."""
+    for key, value in config.items():
+        name = f"{prefix}.{key}" if prefix else str(key)
+        items = value if isinstance(value, list) else [value]
+        if any(isinstance(v, Mapping) and v.get("class_path") == class_path for v in items):
+            return name
+        if isinstance(value, Mapping):
+            found = class_key(value, class_path, name)
+            if found is not None:
+                return found
+    return None
+
+
 class VerbParser(argparse.ArgumentParser):
     """An argparse parser that takes no abbreviation (``--epi`` is not ``--episodes``) and
     answers a command line it cannot parse with one line (:func:`parse_error_line`: the

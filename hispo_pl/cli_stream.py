@@ -84,9 +84,10 @@ def run_stream_from_cli(cli: LightningCLI, model, datamodule) -> dict:
     first_trainer = [True]
 
     def make_trainer(k: int):
-        """Task ``k``'s Trainer: the model summary once per stream, and progress as lines when
-        the output is not a terminal."""
-        from .console import StopWhenAsked, task_progress
+        """Task ``k``'s Trainer: the model summary once per stream, progress as lines when the
+        output is not a terminal, and Lightning's accelerator lines left to the command's
+        first Trainer (they would repeat)."""
+        from .console import StopWhenAsked, lightning_notices_held, plain_summary, task_progress
 
         extra: dict = {} if first_trainer[0] else {"enable_model_summary": False}
         first_trainer[0] = False
@@ -96,12 +97,15 @@ def run_stream_from_cli(cli: LightningCLI, model, datamodule) -> dict:
         task_callbacks = [*task_progress(callbacks, label, max_steps, bar), StopWhenAsked()]
         if not any(isinstance(cb, ProgressBar) for cb in task_callbacks):
             extra["enable_progress_bar"] = False  # lines, or no bar: not Lightning's either
-        return cli.instantiate_trainer(
-            callbacks=task_callbacks,
-            enable_checkpointing=False,
-            default_root_dir=run_dir,
-            **extra,
-        )
+        with lightning_notices_held():
+            trainer = cli.instantiate_trainer(
+                callbacks=task_callbacks,
+                enable_checkpointing=False,
+                default_root_dir=run_dir,
+                **extra,
+            )
+        trainer.callbacks = plain_summary(trainer.callbacks)
+        return trainer
 
     make_datamodule = task_datamodules(datamodule, data_args)
     reference = module_bytes(model.reference_model())  # MEM's unit: one single-task model

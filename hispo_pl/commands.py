@@ -25,11 +25,16 @@ def set_num_threads(n: int) -> None:
         torch.set_num_threads(n)
 
 
+NUM_THREADS_FLAGS = ("--num_threads", "--num-threads")
+"""Every verb takes the thread count as ``--num_threads`` (the configs' key), with
+``--num-threads`` as another spelling of it."""
+
+
 def add_num_threads_argument(parser: argparse.ArgumentParser) -> None:
-    """``--num_threads``, 1 as in fit's configs: on shared cores one thread per process often
-    wins (docs/performance.md)."""
+    """``--num_threads`` (or ``--num-threads``), 1 as in fit's configs: on shared cores one
+    thread per process often wins (docs/performance.md)."""
     parser.add_argument(
-        "--num_threads",
+        *NUM_THREADS_FLAGS,
         type=int,
         default=1,
         help="torch.set_num_threads (default 1, as fit's configs; 0: torch's choice)",

@@ -6,13 +6,17 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import shutil
 import sys
+import textwrap
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from numbers import Number
 from pathlib import Path
 
 import lightning as L
-from lightning.pytorch.callbacks import TQDMProgressBar
+from lightning.pytorch.callbacks import ModelSummary, RichModelSummary, TQDMProgressBar
+from tqdm.utils import disp_len
 
 from .metrics import METRICS
 from .progress import duration, interactive
@@ -32,8 +36,32 @@ TENSORBOARD_GLANCE = "http://localhost:6006/#custom_scalars&_smoothingWeight=0"
 which TensorBoard's default smoothing would draw away from what was measured."""
 
 
+PREFIX = "[hispo-pl] "
+
+
 def say(message: str) -> None:
-    print(f"[hispo-pl] {message}", flush=True)
+    """Print ``message`` after the command's prefix (:func:`terminal_line`)."""
+    print(terminal_line(PREFIX + message), flush=True)
+
+
+def terminal_line(line: str, width: int | None = None) -> str:
+    """``line`` as printed: on a terminal (or with ``width``), wrapped between words to the
+    terminal's width, its continuation lines indented under the text after the prefix; in a
+    log or a pipe one line per message, whole, for grep."""
+    if width is None:
+        if not interactive():
+            return line
+        width = shutil.get_terminal_size().columns
+    if len(line) <= width:
+        return line
+    indent = " " * len(PREFIX) if line.startswith(PREFIX) else ""
+    return textwrap.fill(
+        line,
+        width=width,
+        subsequent_indent=indent,
+        break_long_words=False,  # a path or an address stays whole
+        break_on_hyphens=False,
+    )
 
 
 @contextlib.contextmanager
@@ -46,6 +74,15 @@ def lightning_notices_once():
     finally:
         for name, level in levels.items():
             logging.getLogger(name).setLevel(level)
+
+
+@contextlib.contextmanager
+def lightning_notices_held():
+    """Within: Lightning's notices are held back, e.g. while a stream builds a task's Trainer
+    (its accelerator lines, "GPU available: ...", repeat those of the command's first one)."""
+    with lightning_notices_once():
+        quiet_lightning_notices()
+        yield
 
 
 def quiet_lightning_notices() -> None:
@@ -126,13 +163,59 @@ def step_lines(label: str, max_steps: int | None) -> StepLines | None:
     return StepLines(label, every=max(1, max_steps // 10))
 
 
+def short_metric_name(key: str) -> str:
+    """The name a progress bar shows for a logged value: its last path part, less ``loss_``
+    (``task_01/train/loss_high`` -> ``high``, ``task_01/train/loss`` -> ``loss``)."""
+    name = key.rsplit("/", 1)[-1]
+    return name.removeprefix("loss_") or name
+
+
+def fit_postfix(values: Mapping[str, str], room: int | None) -> dict[str, str]:
+    """The leading ``values`` whose ``, name=value`` parts fit in ``room`` characters (all of
+    them when ``room`` is None: no width to fit); the others are left to the loggers."""
+    if room is None:
+        return dict(values)
+    kept, used = {}, 0
+    for name, value in values.items():
+        used += len(f", {name}={value}")
+        if used > room:
+            break
+        kept[name] = value
+    return kept
+
+
+MIN_BAR_CELLS = 10
+"""The narrowest bar :class:`TaskProgressBar` leaves when it fits its values to a terminal
+(the width tqdm draws a bar when it has no terminal width to fill)."""
+
+
+def postfix_room(bar) -> int | None:
+    """How many characters a tqdm ``bar`` can give its postfix and still draw
+    :data:`MIN_BAR_CELLS` cells in its terminal's width, three kept back for the rate and
+    times, which grow; None when the bar has no width to fit."""
+    info = bar.format_dict  # a dynamic-width bar reads its terminal's width here
+    ncols = info.get("ncols")
+    if not ncols:
+        return None
+    bare = bar.format_meter(**{**info, "postfix": None, "ncols": None})  # a 10-cell bar
+    return ncols - disp_len(bare) - 3
+
+
 class TaskProgressBar(TQDMProgressBar):
     """One bar per task over its gradient steps (Lightning's own restarts at every epoch of
-    ``steps_per_epoch`` batches), labelled with the task: ``task 2/4: 37%|███ | 2220/6000``."""
+    ``steps_per_epoch`` batches), labelled with the task: ``task 2/4: 37%|███ | 2220/6000``.
+
+    Its values fit the terminal: short names (:func:`short_metric_name`), and only as many
+    as leave the bar :data:`MIN_BAR_CELLS` cells. The bar is closed at the task's last step,
+    so its time and rate are those of training, not of the search and evaluation after it."""
 
     def __init__(self, label: str, refresh_rate: int = 10):
         super().__init__(refresh_rate=refresh_rate)
         self.label = label
+
+    @property
+    def train_description(self) -> str:
+        return self.label
 
     def on_train_epoch_start(self, trainer: L.Trainer, *_) -> None:
         bar = self.train_progress_bar
@@ -145,18 +228,73 @@ class TaskProgressBar(TQDMProgressBar):
         bar, step = self.train_progress_bar, trainer.global_step
         if self._should_update(step, trainer.max_steps):
             bar.n = step
-            bar.refresh()
-            bar.set_postfix(self.get_metrics(trainer, pl_module))
+            self.show_metrics(trainer, pl_module)
+        if 0 < trainer.max_steps <= step:  # training is over: the bar as it ends, kept
+            bar.close()
 
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        self.train_progress_bar.set_postfix(self.get_metrics(trainer, pl_module))
+        if not self.train_progress_bar.disable:
+            self.show_metrics(trainer, pl_module)
+
+    def show_metrics(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        """Redraw the bar with the values that fit beside it."""
+        bar = self.train_progress_bar
+        values = {
+            name: bar.format_num(v) if isinstance(v, Number) else str(v)
+            for name, v in self.get_metrics(trainer, pl_module).items()
+        }
+        bar.set_postfix(fit_postfix(values, postfix_room(bar)))
 
     def get_metrics(self, trainer: L.Trainer, pl_module: L.LightningModule) -> dict:
-        """The progress bar's values without Lightning's ``v_num`` (the logger's version,
-        ``seed0`` cut to ``eed0``): the run directory is printed once, not on every bar."""
+        """The progress bar's values by short name, without Lightning's ``v_num`` (the
+        logger's version, ``seed0`` cut to ``eed0``): the run directory is printed once, not
+        on every bar."""
         metrics = super().get_metrics(trainer, pl_module)
         metrics.pop("v_num", None)
-        return metrics
+        short: dict = {}
+        for key, value in metrics.items():
+            short.setdefault(short_metric_name(key), value)
+        return short
+
+
+class ParameterSummary(ModelSummary):
+    """Lightning's model summary in one line: the module's parameters and its top-level parts
+    (``[hispo-pl] HiSPO: 145 K parameters (0.58 MB): policies 145 K, scores 2``). Lightning's
+    table has a FLOPs column and total, counted over a forward pass of
+    ``example_input_array``; a policy fed a batch of several tensors has none, so they read 0."""
+
+    def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if self._max_depth and trainer.is_global_zero:
+            say(parameter_line(type(pl_module).__name__, pl_module))
+
+
+def parameter_line(name: str, module) -> str:
+    """``HiSPO: 145 K parameters (0.58 MB): policies 145 K, scores 2``; the trainable ones
+    are counted when some are not (``145 K parameters, 97 K trainable``)."""
+    from lightning.pytorch.utilities.model_summary import summarize
+    from lightning.pytorch.utilities.model_summary.model_summary import (
+        get_human_readable_count as count,
+    )
+
+    summary = summarize(module, max_depth=1)
+    total, trainable = summary.total_parameters, summary.trainable_parameters
+    line = f"{name}: {count(total)} parameters"
+    if trainable != total:
+        line += f", {count(trainable)} trainable"
+    line += f" ({summary.model_size:.2f} MB)"
+    layers = zip(summary.layer_names, summary.param_nums, strict=True)
+    parts = [f"{layer} {count(n)}" for layer, n in layers]
+    return line + (": " + ", ".join(parts) if parts else "")
+
+
+def plain_summary(callbacks: list) -> list:
+    """``callbacks`` with Lightning's default model summary (a table with a FLOPs column that
+    reads 0 here) replaced by :class:`ParameterSummary`; a summary of the user's own class
+    stays."""
+    return [
+        ParameterSummary() if type(cb) in (ModelSummary, RichModelSummary) else cb
+        for cb in callbacks
+    ]
 
 
 class StopWhenAsked(L.Callback):
@@ -219,20 +357,44 @@ def metrics_line(results: StreamResults) -> str:
     return "  ".join(parts)
 
 
+def stream_line(specs: Sequence[str], datasets: Sequence[dict | None] | None) -> str:
+    """``pointmaze-umaze-N[500] -> pointmaze-umaze-PA[500]``: the stream's tasks by spec, but
+    a task that read a named Minari dataset by its maze and variant and that dataset with the
+    episodes it holds (the spec's ``[episodes]`` counted nothing), said once when every task
+    read the same: ``pointmaze-umaze-N -> pointmaze-umaze-PO, from umaze-v1 (5 episodes)``."""
+    from .data.datasets import DatasetUse, dataset_id_of
+    from .tasks import parse_task
+
+    names, sources = [], []
+    for k, spec in enumerate(specs):
+        used = datasets[k] if datasets and k < len(datasets) else None
+        task = parse_task(spec)
+        if not used or used.get("dataset") == dataset_id_of(task):  # our data: the spec says it
+            names.append(spec)
+            sources.append(None)
+        else:
+            names.append(f"{task.family}-{task.maze}-{task.variant}")
+            sources.append(str(DatasetUse(used["dataset"], used["episodes"])))
+    if sources and sources[0] is not None and len(set(sources)) == 1:
+        return " -> ".join(names) + f", from {sources[0]}"
+    named = zip(names, sources, strict=True)
+    return " -> ".join(name if src is None else f"{name} from {src}" for name, src in named)
+
+
 def print_stream_results(results: dict) -> None:
     typed = StreamResults.from_json(results)
-    print(f"[hispo-pl] stream {' -> '.join(typed.stream)}")
+    say(f"stream {stream_line(typed.stream, typed.datasets)}")
     print(typed.table)
-    print("[hispo-pl] " + metrics_line(typed))
+    say(metrics_line(typed))
     if typed.anchors:
-        print(f"[hispo-pl] anchors per subspace: {typed.anchors}")
+        say(f"anchors per subspace: {typed.anchors}")
     run_dir = RunDir(results["run_dir"])
     decisions = run_dir.decisions()
     legend = decision_legend(decisions)
     for line in decision_lines(decisions):
-        print(f"[hispo-pl] {line}  ({legend})")
-    print(f"[hispo-pl] wall time per task (s): {[round(t) for t in typed.wall_time_s or []]}")
-    print(f"[hispo-pl] results: {run_dir.results_file}")
+        say(f"{line}  ({legend})")
+    say(f"wall time per task (s): {[round(t) for t in typed.wall_time_s or []]}")
+    say(f"results: {run_dir.results_file}")
     if any(Path(results["run_dir"]).glob("events.out.tfevents.*")):
-        print(f"[hispo-pl] curves and decisions: tensorboard --logdir {results['run_dir']}")
-        print(f"[hispo-pl] the stream at a glance, unsmoothed: {TENSORBOARD_GLANCE}")
+        say(f"curves and decisions: tensorboard --logdir {results['run_dir']}")
+        say(f"the stream at a glance, unsmoothed: {TENSORBOARD_GLANCE}")

@@ -13,10 +13,16 @@ from pathlib import Path
 import torch
 from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
 
-from .cli_errors import dotted_flags, parse_error_line, unknown_flag, without_flag
+from .cli_errors import (
+    class_problem_line,
+    dotted_flags,
+    parse_error_line,
+    unknown_flag,
+    without_flag,
+)
 from .cli_stream import run_stream_from_cli
-from .commands import flip_note, set_num_threads
-from .console import StopWhenAsked, print_stream_results
+from .commands import NUM_THREADS_FLAGS, flip_note, set_num_threads
+from .console import StopWhenAsked, print_stream_results, say
 from .data.datamodule import TaskDataModule
 from .errors import ConfigError, Interrupted, UserError
 from .io import replace_link
@@ -42,7 +48,7 @@ class HispoCLI(LightningCLI):
 
     def add_arguments_to_parser(self, parser) -> None:
         parser.add_argument(
-            "--num_threads",
+            *NUM_THREADS_FLAGS,
             type=int,
             default=0,
             help="torch.set_num_threads (0: torch default); see docs/performance.md.",
@@ -97,6 +103,22 @@ class HispoCLI(LightningCLI):
             message = str(err)
             known = self._known_flags(parser, args, message)
             raise ConfigError(parse_error_line(message, known)) from None
+
+    def instantiate_classes(self) -> None:
+        """LightningCLI's; a class of the configuration that cannot be made (a logger whose
+        package is not installed) is one line naming its flag and the reason.
+
+        Raises:
+            ConfigError: the class and why it could not be made."""
+        try:
+            super().instantiate_classes()
+        except ValueError as err:
+            config = self.config.get(self.subcommand, self.config) if self.subcommand else None
+            plain = config.as_dict() if hasattr(config, "as_dict") else None
+            line = class_problem_line(str(err), plain)
+            if line is None:
+                raise
+            raise ConfigError(line) from None
 
     def _known_flags(self, parser, args, message: str) -> list[str]:
         """The flags ``hispo-pl fit`` takes, for the closest match to an unknown one: the
@@ -164,11 +186,11 @@ class HispoCLI(LightningCLI):
         """One task: ``trainer.fit``. A stream: the ContinualLoop, a fresh Trainer per task."""
         refuse_unseen_variants(model, datamodule)
         if not datamodule.tasks:
-            from .console import task_progress
+            from .console import plain_summary, task_progress
             from .loop import fit_interruptibly
 
             bar = self.trainer.progress_bar_callback is not None
-            callbacks = self.trainer.callbacks
+            callbacks = plain_summary(self.trainer.callbacks)
             label = datamodule.describe()
             progress = task_progress(callbacks, label, self.trainer.max_steps, bar)
             self.trainer.callbacks = [*progress, StopWhenAsked()]
@@ -186,8 +208,8 @@ class HispoCLI(LightningCLI):
         if record.evaluation is None:  # no RolloutEvaluation callback
             return
         last, task = record.evaluation, self.datamodule.task
-        print(
-            f"[hispo-pl] {type(self.model).__name__} on {self.datamodule.describe()}: success "
+        say(
+            f"{type(self.model).__name__} on {self.datamodule.describe()}: success "
             f"{100 * last['success']:.1f}% over {record.episodes} episodes, mean episode "
             f"length {last['episode_length']:.1f}{flip_note(last['flip_rate'])}, after "
             f"{last['step']} steps ({self.fit_seconds:.0f} s with evaluations)"
@@ -195,7 +217,7 @@ class HispoCLI(LightningCLI):
         if self.trainer.log_dir:
             used = self.datamodule.dataset_use
             write_task_result(self.trainer.log_dir, self.model, task, self.fit_seconds, used)
-            print(f"[hispo-pl] TensorBoard logs: {self.trainer.log_dir}")
+            say(f"TensorBoard logs: {self.trainer.log_dir}")
 
 
 def _lightning_checkpoint_name(ckpt_path: str) -> bool:

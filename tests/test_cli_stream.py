@@ -271,9 +271,25 @@ def test_a_stream_on_a_minari_dataset_names_it_and_its_episodes(tiny_umaze, tmp_
     out = capsys.readouterr().out
     assert "task 1/2: pointmaze-umaze-N from umaze-v1 (5 episodes), 5 steps" in out
     assert "task 2/2: pointmaze-umaze-PO from umaze-v1 (5 episodes)" in out
+    # the stream's line too: the spec's [500] counted nothing
+    assert "stream pointmaze-umaze-N -> pointmaze-umaze-PO, from umaze-v1 (5 episodes)" in out
+    assert "[500]" not in out
     results = json.loads((tmp_path / "pointmaze-1" / "seed0" / "results.json").read_text())
     assert results["datasets"] == [{"dataset": "umaze-v1", "episodes": 5}] * 2
     assert results["stream"] == stream  # the specs as given: a rerun resumes the same run
+
+
+def test_the_stream_line_names_a_named_dataset_where_a_task_read_one():
+    from hispo_pl.console import stream_line
+
+    ours = {"dataset": "hispo/pointmaze-umaze-expert-v0", "episodes": 3}
+    own = {"dataset": "mydata/umaze-v0", "episodes": 12}
+    specs = ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[500]"]
+    assert stream_line(specs, None) == "pointmaze-umaze-N[3] -> pointmaze-umaze-PO[500]"
+    assert stream_line(specs, [ours, None]) == "pointmaze-umaze-N[3] -> pointmaze-umaze-PO[500]"
+    assert stream_line(specs, [ours, own]) == (
+        "pointmaze-umaze-N[3] -> pointmaze-umaze-PO from mydata/umaze-v0 (12 episodes)"
+    )
 
 
 def test_a_stream_on_our_data_records_it_too(tiny_run):

@@ -666,7 +666,7 @@ GRID_FILES = {
 @pytest.mark.parametrize(
     "argv, said",
     [
-        (["--grid", "paper", "--num-threads", "0"], "argument --num-threads: must be an integer"),
+        (["--grid", "paper", "--num-threads", "0"], "--num-threads: must be an integer"),
         (["--grid", "paper", "--workers", "0"], "argument --workers: must be an integer >= 1"),
         (["--grid", "{tmp}/parts-list.yaml"], "`parts` must be a mapping of part names"),
         (["--grid", "{tmp}/sweeps-list.yaml"], "`sweeps` must be a mapping of methods"),

@@ -6,6 +6,7 @@ import argparse
 import os
 
 from ..cli_errors import VerbParser
+from ..commands import NUM_THREADS_FLAGS
 
 
 def cpu_count() -> int:
@@ -91,10 +92,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--address local: the private instance gets workers x threads CPUs",
     )
     parser.add_argument(
-        "--num-threads",
+        *NUM_THREADS_FLAGS,  # as every verb takes it
         type=positive_int,
         default=1,
-        help="torch threads (and Ray CPUs) per run (default: 1)",
+        help="torch threads (and Ray CPUs) per run, fit's --num_threads (default: 1)",
     )
     parser.add_argument(
         "--launcher",
