@@ -44,7 +44,7 @@ def test_lr_table_is_the_eager_schedule():
     assert lr_table(1e-3, "constant", 50) == lr_table(1e-3, "cosine", -1) == [1e-3]
 
 
-@pytest.mark.parametrize("case", ["hbc", "bc", "hispo-4"])
+@pytest.mark.parametrize("case", ["hbc", "bc", "hispo-4", "hilow-3", "cspo-2"])
 def test_program_body_is_the_eager_step(case, monkeypatch):
     """Loss, every gradient and every parameter after each of four updates (cosine schedule
     over six), the dropout bytes and anchor-weight noise the same on both sides."""

@@ -174,7 +174,10 @@ class TrainingProgram:
         return None if first < 0 else first
 
     def release(self) -> None:
-        """Drop the captured graph and its memory pool (at a task's end)."""
+        """Drop the captured graph and its memory pool (at a task's end): the gradients the
+        graph wrote live in its pool, so they go too."""
+        if self.graph is not None:
+            self.optimizer.zero_grad(set_to_none=True)
         self.graph = None
         self.batch = None
 
