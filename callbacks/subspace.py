@@ -15,9 +15,10 @@ from lightning.pytorch.utilities import rank_zero_warn
 from typing_extensions import override
 
 from ..decisions import decided_by_budget, keep_previous
-from ..results import Decision, LossDecision, ZeroShotDecision
+from ..figures import anchor_counts_figure, rule_figure
+from ..results import Decision, ZeroShotDecision
 from ..rundir import RunDir, task_label
-from ..stream_report import PRUNE_BAR
+from ..stream_report import rule_metrics
 from ..tasks import Family
 from .protocols import require_subspace_policy
 from .rollout import RolloutEvaluation
@@ -190,10 +191,9 @@ def log_decisions(trainer: L.Trainer, module, decisions: list[dict]) -> None:
         return
     task = task_label(module.task_index)
     metrics = {f"anchors/{d.subspace}/count": d.anchors for d in records}
+    metrics.update(rule_metrics(records))
     for d in records:
         values = d.to_json()
-        if isinstance(d, LossDecision) and d.l_prev is not None:
-            metrics[f"search/{d.subspace}/{PRUNE_BAR}"] = (1 + d.eps) * d.l_curr
         for key, tag in SEARCH_TAGS.items():
             if values.get(key) is not None:
                 metrics[f"search/{d.subspace}/{tag}"] = values[key]
@@ -206,3 +206,10 @@ def log_decisions(trainer: L.Trainer, module, decisions: list[dict]) -> None:
     if isinstance(logger, TensorBoardLogger):
         text = "\n".join(f"{d.subspace}: {d.decision} (anchors {d.anchors})" for d in records)
         logger.experiment.add_text("decisions", text, global_step=task)
+        so_far = RunDir(trainer.default_root_dir).decisions()  # every task's, this one last
+        # drawn as they are: TensorBoard's charts smooth these few points and leave out their
+        # extremes when scaling an axis, so a scalar chart can miss the very value that decided
+        for tag, fig in (("pruning/rule", rule_figure(so_far)),
+                         ("anchors/per_subspace", anchor_counts_figure(so_far))):  # fmt: skip
+            if fig is not None:
+                logger.experiment.add_figure(tag, fig, global_step=task)

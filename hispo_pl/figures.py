@@ -7,6 +7,7 @@ Shared by TensorBoard (:mod:`hispo_pl.stream_report`) and the anchor-weights not
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -16,18 +17,47 @@ from matplotlib.ticker import ScalarFormatter
 from .metrics import METRICS
 from .rundir import task_label
 
-# Twelve markers and twelve distinct colours (matplotlib's ten, then black and navy): no two
-# of the paper's twelve methods are drawn alike in a figure.
-METHOD_MARKERS = "osD^vP*Xh<>p"
-METHOD_COLORS = tuple(f"C{i}" for i in range(10)) + ("black", "navy")
+# One style per method, the same in every figure: the shipped methods have their own (HiSPO a
+# red star), any other name (a user's method, a study's variant) one chosen from its name.
+METHOD_STYLES: dict[str, tuple[str, str]] = {
+    "hispo": ("*", "tab:red"),
+    "hispo-pac": ("p", "darkred"),
+    "hilow": ("h", "tab:pink"),
+    "csp": ("D", "tab:purple"),
+    "cspo": ("d", "navy"),
+    "scn": ("s", "tab:blue"),
+    "sc1": ("H", "tab:cyan"),
+    "ftn": ("^", "tab:orange"),
+    "ft1": ("v", "tab:olive"),
+    "frz": ("X", "tab:gray"),
+    "l2": ("<", "tab:brown"),
+    "ewc": (">", "tab:green"),
+    "pnn": ("o", "black"),
+    "rpl": ("8", "teal"),
+}
+OTHER_MARKERS = "osD^vP*Xh<>pd8H"
+OTHER_COLORS = (
+    "goldenrod", "slateblue", "darkcyan", "sienna", "orchid", "yellowgreen", "steelblue",
+    "coral", "darkmagenta", "olivedrab", "rosybrown", "dodgerblue", "chocolate", "seagreen",
+)  # fmt: skip
 
 
-def method_style(i: int) -> dict[str, str]:
-    """The marker (``fmt``) and colour of the ``i``-th method of a figure."""
-    return {
-        "fmt": METHOD_MARKERS[i % len(METHOD_MARKERS)],
-        "color": METHOD_COLORS[i % len(METHOD_COLORS)],
-    }
+def method_style(method: str) -> dict[str, str]:
+    """The marker (``fmt``) and colour of ``method`` in every figure: the shipped methods'
+    own, else one picked by a hash of the name (stable across figures, runs and machines;
+    ``hash()`` of a str changes with each interpreter)."""
+    if method in METHOD_STYLES:
+        marker, color = METHOD_STYLES[method]
+    else:
+        h = zlib.crc32(method.encode())
+        color = OTHER_COLORS[h % len(OTHER_COLORS)]
+        marker = OTHER_MARKERS[(h // len(OTHER_COLORS)) % len(OTHER_MARKERS)]
+    return {"fmt": marker, "color": color}
+
+
+def marker_size(marker: str) -> float:
+    """Points of a method's marker: stars and thin shapes a little larger, to weigh alike."""
+    return 11.0 if marker == "*" else 7.0
 
 
 TRIANGLE = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, np.sqrt(3) / 2]])
@@ -182,34 +212,81 @@ def span_limits(lo: float, hi: float, min_span: float) -> tuple[float, float]:
     return centre - 1.1 * half, centre + 1.1 * half
 
 
+# Where a label may go around its point, nearest first: rings of growing radius (points on the
+# page), eight directions on each. (dx, dy) is a unit direction; the label's box touches the
+# point's side of the ring, so a label "east" starts right of the point, "north" sits above it.
+LABEL_RADII = (4.0, 12.0, 22.0, 34.0, 48.0, 64.0)
+LABEL_DIRECTIONS = ((1, 0), (1, 1), (1, -1), (0, 1), (0, -1), (-1, 0), (-1, 1), (-1, -1))
+
+
 def label_offsets(
     points: Sequence[tuple[float, float]],
     sizes: Sequence[tuple[float, float]],
-    gap: float = 4.0,
     bounds: tuple[float, float, float, float] | None = None,
-) -> list[tuple[float, float]]:
-    """Where each point's label goes, as offsets in points from the point to the label's
-    lower-left corner: the first of a few places around it (then further up or down) whose box
-    of ``sizes`` (width, height, in points) meets no label already placed and no other point,
-    and stays inside ``bounds`` (the axes: x0, y0, x1, y1) when given. ``points`` are in
-    points on the page, so labels of coincident points stack, not overlap."""
+    marker: float = 7.0,
+) -> list[tuple[float, float, bool]]:
+    """Where each point's label goes, as the offset in points from the point to the label's
+    lower-left corner and whether it needs a leader line: the nearest free place on rings
+    around its own point (:data:`LABEL_RADII` × :data:`LABEL_DIRECTIONS`) whose box of
+    ``sizes`` (width, height, in points) meets no label already placed and no point's marker
+    (``marker`` points wide), inside ``bounds`` (the axes: x0, y0, x1, y1) when given.
+    ``points`` are in points on the page. Labels of a crowded spot fan out around it, each
+    joined to its point by a leader line, rather than stacking in a column away from it;
+    with no free place at all, the label goes right of its point."""
     placed: list[tuple[float, float, float, float]] = []
     offsets = []
-    for i, ((x, y), (w, h)) in enumerate(zip(points, sizes, strict=True)):
-        candidates = [(gap, gap), (gap, -gap - h), (-gap - w, gap), (-gap - w, -gap - h)]
-        candidates += [(gap, gap + k * (h + 1)) for k in range(1, 8)]
-        candidates += [(gap, -gap - h - k * (h + 1)) for k in range(1, 8)]
-        marks = [(px - 3, py - 3, px + 3, py + 3) for j, (px, py) in enumerate(points) if j != i]
-        boxes = [(x + dx, y + dy, x + dx + w, y + dy + h) for dx, dy in candidates]
-        free = [
-            n
-            for n, box in enumerate(boxes)
-            if not any(_overlap(box, o) for o in placed + marks) and _within(box, bounds)
-        ]
-        n = free[0] if free else 0
-        placed.append(boxes[n])
-        offsets.append(candidates[n])
+    half = marker / 2
+    marks = [(px - half, py - half, px + half, py + half) for px, py in points]
+    for (x, y), (w, h) in zip(points, sizes, strict=True):
+        choice = None
+        for ring, radius in enumerate(LABEL_RADII):
+            for ux, uy in LABEL_DIRECTIONS:
+                dx = radius + half if ux > 0 else -radius - half - w if ux < 0 else -w / 2
+                dy = radius + half if uy > 0 else -radius - half - h if uy < 0 else -h / 2
+                if ux and uy:  # a diagonal: the corner of the box on the ring
+                    dx, dy = dx - ux * 0.3 * radius, dy - uy * 0.3 * radius
+                box = (x + dx, y + dy, x + dx + w, y + dy + h)
+                free = not any(_overlap(box, o) for o in placed + marks)
+                if free and ring:  # a leader line must not cross a label already placed
+                    free = not any(_crosses((x, y), box, o) for o in placed)
+                if free and _within(box, bounds) and _nearest((x, y), box, points):
+                    choice = (dx, dy, ring > 0)
+                    break
+            if choice is not None:
+                break
+        if choice is None:
+            choice = (LABEL_RADII[0] + half, -h / 2, False)
+        dx, dy, _ = choice
+        placed.append((x + dx, y + dy, x + dx + w, y + dy + h))
+        offsets.append(choice)
     return offsets
+
+
+def _distance(point: tuple[float, float], box: tuple[float, ...]) -> float:
+    """From ``point`` to the nearest point of ``box`` (0 inside it)."""
+    dx = max(box[0] - point[0], 0.0, point[0] - box[2])
+    dy = max(box[1] - point[1], 0.0, point[1] - box[3])
+    return float(np.hypot(dx, dy))
+
+
+def _nearest(own: tuple[float, float], box: tuple[float, ...], points) -> bool:
+    """Whether no other point (apart from those on ``own``'s spot) is nearer to the label's
+    box than its own point: a label read as its neighbour's is worse than one a little away."""
+    mine = _distance(own, box)
+    return all(
+        _distance(p, box) >= mine for p in points if np.hypot(p[0] - own[0], p[1] - own[1]) > 2.0
+    )
+
+
+def _crosses(own: tuple[float, float], box: tuple[float, ...], other: tuple[float, ...]) -> bool:
+    """Whether the leader line from ``own`` to the centre of the label's box passes through
+    the box ``other``."""
+    cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
+    for t in np.linspace(0.0, 1.0, 24):
+        px, py = own[0] + t * (cx - own[0]), own[1] + t * (cy - own[1])
+        if other[0] < px < other[2] and other[1] < py < other[3]:
+            return True
+    return False
 
 
 def _overlap(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
@@ -224,28 +301,42 @@ def _within(box: tuple[float, ...], bounds: tuple[float, ...] | None) -> bool:
     )
 
 
+def _draw_method(ax, method: str, x: float, y: float, **errors) -> None:
+    """One method's point in its own style (:func:`method_style`), with its error bars."""
+    style = method_style(method)
+    ax.errorbar(x, y, **style, ms=marker_size(style["fmt"]), mec="white", mew=0.6, capsize=3,
+                zorder=3, **errors)  # fmt: skip
+
+
+def _count_note(counts: Mapping[str, int], unit: str, single: str = "") -> str:
+    """``3 seeds each`` or ``3 seeds each; 1 seed (no interval): hispo-6k``: what the error
+    bars are over, said once instead of in a legend (``single``: said of a count of one)."""
+    if not counts:
+        return ""
+
+    def many(n: int) -> str:
+        return f"{n} {unit}{'s' if n != 1 else ''}{single if n == 1 else ''}"
+
+    usual = max(sorted(set(counts.values())), key=list(counts.values()).count)
+    note = f"{many(usual)} each"
+    for n in sorted(set(counts.values()) - {usual}):
+        note += f"; {many(n)}: {', '.join(m for m, c in counts.items() if c == n)}"
+    return note
+
+
 def perf_vs_memory_figure(rows: Sequence, stream: str = "") -> Figure:
-    """The paper's Figure 2: MEM on x, PER (%) on y over the whole 0..100 range, one marker
-    per method (rows with ``method``, ``seeds`` and ``metrics``: ``MEM`` and ``PER`` as (mean,
-    std)), error
-    bars of the std over seeds where there are several (one seed has no interval: the legend
-    says so), each method labelled next to its marker without overlaps."""
+    """The paper's Figure 2: MEM on x, PER (%) on y over the whole 0..100 range, one point per
+    method in its own style (rows with ``method``, ``seeds`` and ``metrics``: ``MEM`` and
+    ``PER`` as (mean, std)), error bars of the std over seeds where there are several, each
+    method named beside its point (no legend); the x label says how many seeds each has."""
     rows = [r for r in rows if "MEM" in r.metrics]
     fig = Figure(figsize=(6.8, 4.5), layout="constrained")
     ax = fig.add_subplot()
-    for i, row in enumerate(rows):
+    for row in rows:
         (x, xs), (y, ys) = row.metrics["MEM"], row.metrics["PER"]
         several = len(row.seeds) > 1
-        ax.errorbar(
-            x,
-            100 * y,
-            xerr=xs if several else None,
-            yerr=100 * ys if several else None,
-            **method_style(i),
-            capsize=3,
-            label=f"{row.method} ({len(row.seeds)} seed{'s' if several else ''}"
-            f"{'' if several else ', no interval'})",
-        )
+        _draw_method(ax, row.method, x, 100 * y, xerr=xs if several else None,
+                     yerr=100 * ys if several else None)  # fmt: skip
     xs_all = [r.metrics["MEM"][0] for r in rows] or [1.0]
     ax.set_xlim(*span_limits(min(xs_all), max(xs_all), min_span=1.0))
     top = max([100 * sum(r.metrics["PER"]) for r in rows] + [100.0])
@@ -253,15 +344,13 @@ def perf_vs_memory_figure(rows: Sequence, stream: str = "") -> Figure:
     ax.set_yticks(range(0, 101, 20))
     plain_ticks(ax)
     ax.xaxis.set_major_formatter("{x:.2f}")
-    ax.set_xlabel("MEM (stored size / one single-task model)")
+    note = _count_note({r.method: len(r.seeds) for r in rows}, "seed", " (no interval)")
+    ax.set_xlabel("MEM (stored size / one single-task model)" + (f"\n{note}" if note else ""))
     ax.set_ylabel("PER (success %, mean ± std over seeds)")
     ax.set_title(f"Performance vs memory{': ' + stream if stream else ''}")
     ax.grid(alpha=0.3)
-    if rows:
-        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     centres = [(r.metrics["MEM"][0], 100 * r.metrics["PER"][0]) for r in rows]
-    colors = [method_style(i)["color"] for i in range(len(rows))]
-    label_markers(fig, ax, [r.method for r in rows], centres, colors)
+    label_markers(fig, ax, [r.method for r in rows], centres)
     return fig
 
 
@@ -270,20 +359,18 @@ def label_markers(
     ax,
     names: Sequence[str],
     centres: Sequence[tuple[float, float]],
-    colors: Sequence,
     fontsize: float = 8,
-    leaders: bool = False,
 ) -> None:
-    """Write each name next to its marker (data coordinates ``centres``) in its colour, where
-    :func:`label_offsets` finds room: a crowded corner is read without the legend.
-    ``leaders``: a thin line from each label to its marker, so a label pushed past a
-    neighbour's marker still points at its own."""
+    """Write each method's name beside its point (data coordinates ``centres``) in its
+    colour, where :func:`label_offsets` finds room; a label that had to move past its
+    neighbours keeps a thin leader line to its own point."""
     fig.draw_without_rendering()  # the layout's final axes, so labels are placed as drawn
     points = ax.transData.transform(centres) * 72 / fig.dpi if centres else []
     sizes = [(0.62 * fontsize * len(name), 1.2 * fontsize) for name in names]
     frame = ax.get_window_extent().extents * 72 / fig.dpi
     offsets = label_offsets([tuple(p) for p in points], sizes, bounds=tuple(frame))
-    for name, centre, color, (dx, dy) in zip(names, centres, colors, offsets, strict=True):
+    for name, centre, (dx, dy, leader) in zip(names, centres, offsets, strict=True):
+        color = method_style(name)["color"]
         ax.annotate(
             name,
             centre,
@@ -293,41 +380,144 @@ def label_markers(
             va="bottom",
             color=color,
             fontsize=fontsize,
-            arrowprops=dict(arrowstyle="-", color=color, lw=0.6, shrinkA=0, shrinkB=4)
-            if leaders
+            zorder=4,
+            arrowprops=dict(arrowstyle="-", color=color, lw=0.6, shrinkA=1, shrinkB=3)
+            if leader
             else None,
         )
 
 
 def iqm_vs_memory_figure(rows: Sequence, title: str) -> Figure:
-    """PER's IQM with its interval against mean MEM, one marker per method (rows with
-    ``method``, ``streams``, ``means`` and ``iqm``: point, low, high)."""
+    """PER's IQM with its interval against mean MEM, one point per method in its own style
+    (rows with ``method``, ``streams``, ``means`` and ``iqm``: point, low, high), each named
+    beside its point (no legend); the x label says over how many streams."""
     fig = Figure(figsize=(6.4, 4.6), layout="constrained")
     ax = fig.add_subplot()
     drawn = [r for r in rows if "MEM" in r.means]
-    for i, row in enumerate(drawn):
+    for row in drawn:
         point, low, high = row.iqm
-        ax.errorbar(
-            row.means["MEM"],
-            point,
-            yerr=[[point - low], [high - point]],
-            **method_style(i),
-            capsize=3,
-            label=f"{row.method} ({len(row.streams)} stream{'' if len(row.streams) == 1 else 's'})",
-        )
+        _draw_method(ax, row.method, row.means["MEM"], point,
+                     yerr=[[point - low], [high - point]])  # fmt: skip
     xs = [r.means["MEM"] for r in drawn] or [1.0]
     ax.set_xlim(*span_limits(min(xs), max(xs), min_span=1.0))
     ax.set_ylim(0, max([r.iqm[2] for r in drawn] + [100.0]) + 5)  # a bar and a label at 100 %
     ax.set_yticks(range(0, 101, 20))
     plain_ticks(ax)
     ax.xaxis.set_major_formatter("{x:.2f}")
-    ax.set_xlabel("MEM (mean stored size / one single-task model)")
+    note = _count_note({r.method: len(r.streams) for r in drawn}, "stream")
+    ax.set_xlabel("MEM (mean stored size / one single-task model)" + (f"\n{note}" if note else ""))
     ax.set_ylabel("PER IQM (success %), 95 % CI")
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=7, loc="lower right")
     centres = [(r.means["MEM"], r.iqm[0]) for r in drawn]
-    colors = [method_style(i)["color"] for i in range(len(drawn))]
-    label_markers(fig, ax, [r.method for r in drawn], centres, colors, fontsize=7, leaders=True)
+    label_markers(fig, ax, [r.method for r in drawn], centres, fontsize=7)
+    return fig
+
+
+def forgetting_figure(rows: Sequence[Sequence[float]]) -> Figure:
+    """The forgetting curves as they are (TensorBoard's charts smooth them): after each task
+    trained (x), the success on every task of the stream (%), one colour and marker per task,
+    dashed before the task is trained (zero-shot) and solid from then on."""
+    R = 100 * np.asarray(rows, dtype=float)
+    trained, n = R.shape
+    fig = Figure(figsize=(2.8 + 0.55 * max(trained, 3), 3.4), layout="constrained")
+    ax = fig.add_subplot()
+    after = np.arange(1, trained + 1)
+    for k, tag in enumerate(task_labels(n)):
+        color, marker = f"C{k % 10}", OTHER_MARKERS[k % len(OTHER_MARKERS)]
+        seen = after >= k + 1
+        ax.plot(after[~seen | (after == k + 1)], R[~seen | (after == k + 1), k], ls="--",
+                color=color, lw=1)  # fmt: skip
+        ax.plot(after[seen], R[seen, k], color=color, lw=1.8, marker=marker, ms=5, label=tag)
+        ax.plot(after[~seen], R[~seen, k], ls="none", color=color, marker=marker, ms=5,
+                mfc="none")  # fmt: skip
+    ax.set_xticks(after, task_labels(trained))
+    ax.set_xlim(0.7, trained + 0.3)
+    ax.set_ylim(-3, 105)
+    ax.set_xlabel("after training task\n(dashed, hollow: the task not trained yet)")
+    ax.set_ylabel("success (%)")
+    ax.set_title("success on each task", fontsize=10)
+    ax.grid(alpha=0.3)
+    fig.legend(loc="outside right upper", fontsize="small", title="success on")
+    return fig
+
+
+def rule_figure(decisions: Sequence) -> Figure | None:
+    """HiSPO's pruning rule of each task after the first, one panel per subspace: the ratio
+    ``L_prev / L_curr`` (▼ pruned, ▲ kept) against its line ``1 + eps``, each value written
+    beside it, on an axis from 0 that holds every point (None: no decision compared two
+    losses)."""
+    compared = [d for d in decisions if getattr(d, "l_prev", None) is not None and d.l_curr]
+    compared = [d for d in compared if getattr(d, "eps", None) is not None]
+    if not compared:
+        return None
+    last = {(d.task, d.subspace): d for d in compared}  # a resumed run may repeat a task
+    subspaces = list(dict.fromkeys(d.subspace for d in last.values()))
+    tasks = sorted({t for t, _ in last})
+    fig = Figure(
+        figsize=(0.6 + (1.6 + 0.6 * len(tasks)) * len(subspaces), 3.4), layout="constrained"
+    )
+    axes = fig.subplots(1, len(subspaces), squeeze=False)[0]
+    top = max(max(d.l_prev / d.l_curr, 1 + d.eps) for d in last.values())
+    for ax, name in zip(axes, subspaces, strict=True):
+        drawn = [(x, last[task, name]) for x, task in enumerate(tasks) if (task, name) in last]
+        for i, (x, d) in enumerate(drawn):
+            ratio, line = d.l_prev / d.l_curr, 1 + d.eps
+            pruned = d.decision == "prune"
+            ax.hlines(line, x - 0.35, x + 0.35, color="0.25", ls="--", lw=1.4)
+            if i == len(drawn) - 1 or drawn[i + 1][1].eps != d.eps:  # once per value of eps
+                ax.annotate(f"1 + ε = {line:.2f}", (x + 0.37, line), va="center", fontsize=7,
+                            color="0.25")  # fmt: skip
+            ax.plot([x, x], [0, ratio], color="0.75", lw=3, zorder=1)
+            ax.plot(x, ratio, marker="v" if pruned else "^", ms=10, ls="none", zorder=3,
+                    color="tab:red" if pruned else "tab:green")  # fmt: skip
+            ax.annotate(f"{ratio:.2f} {d.decision}", (x, ratio), xytext=(0, 7),
+                        textcoords="offset points", ha="center", fontsize=8)  # fmt: skip
+        ax.set_xticks(range(len(tasks)), [task_tag(t) for t in tasks])
+        ax.set_xlim(-0.6, len(tasks) + 0.3)
+        ax.set_ylim(0, 1.2 * top)
+        ax.set_xlabel("task")
+        ax.set_title(f"{name}: L_prev / L_curr vs 1 + ε", fontsize=9)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].set_ylabel("L_prev / L_curr")
+    fig.suptitle("pruned (▼) where L_prev / L_curr ≤ 1 + ε, else kept (▲)", fontsize=9)
+    return fig
+
+
+DECISION_MARKERS = {"first": ("o", "0.4"), "keep": ("^", "tab:green"), "prune": ("v", "tab:red")}
+"""How each decision on a new anchor is drawn: its marker and fill."""
+
+
+def anchor_counts_figure(decisions: Sequence) -> Figure | None:
+    """The anchor count of each subspace after each task (``decisions`` as
+    :meth:`~hispo_pl.rundir.RunDir.decisions` reads them; a repeated task's last wins), marked
+    by the decision that set it (▲ kept, ▼ pruned), against the count without pruning
+    (dotted); every count on an integer axis from 0 (None: no decision with a count)."""
+    last = {(d.task, d.subspace): d for d in decisions if getattr(d, "anchors", None)}
+    if not last:
+        return None
+    tasks = sorted({t for t, _ in last})
+    fig = Figure(figsize=(3.2 + 0.6 * len(tasks), 3.4), layout="constrained")
+    ax = fig.add_subplot()
+    x_all = np.array([task_label(t) for t in tasks])
+    ax.plot(x_all, x_all, ":", color="0.6", label="no pruning")
+    names = list(dict.fromkeys(s for _, s in last))
+    for i, name in enumerate(names):
+        rows = sorted((d for (_, s), d in last.items() if s == name), key=lambda d: d.task)
+        x = np.array([task_label(d.task) for d in rows])
+        y = np.array([d.anchors for d in rows]) + 0.05 * (i - (len(names) - 1) / 2)
+        (line,) = ax.step(x, y, where="post", lw=2, color=f"C{i}", label=name)
+        for xi, yi, d in zip(x, y, rows, strict=True):
+            marker, color = DECISION_MARKERS.get(d.kind, ("s", "k"))
+            ax.scatter(xi, yi, marker=marker, s=70, color=color, edgecolor=line.get_color(),
+                       linewidth=1.5, zorder=3)  # fmt: skip
+    for decision, (marker, color) in DECISION_MARKERS.items():
+        ax.scatter([], [], marker=marker, color=color, label=decision)
+    ax.set_xticks(x_all, [task_tag(t) for t in tasks])
+    ax.set_xlabel("after task")
+    ax.set_ylabel("anchors")
+    ax.set_ylim(0, max(max(x_all), max(d.anchors for d in last.values())) + 0.6)
+    ax.yaxis.get_major_locator().set_params(integer=True)
+    ax.set_title("anchors per subspace", fontsize=10)
+    fig.legend(loc="outside right upper", fontsize="small")
     return fig

@@ -217,7 +217,8 @@ class ContinualLoop:
                 decided = self.run_dir.decisions()
                 subspaces = list(dict.fromkeys(d.subspace for d in decided))
                 self._layout_logged = True
-            log_task_end(self._loggers, k, row, picture, subspaces, memory_now)
+            rows = [*progress["rows"], list(row)]  # R so far, this task's row last
+            log_task_end(self._loggers, rows, picture, subspaces, memory_now)
         atomic_save(
             self.run_dir.checkpoint(k), lambda tmp: trainer.save_checkpoint(tmp, weights_only=False)
         )

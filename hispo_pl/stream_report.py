@@ -19,15 +19,21 @@ from matplotlib.figure import Figure
 
 from .figures import (
     anchor_weights_figure,
+    forgetting_figure,
     simplex_figure,
     success_matrix_figure,
     task_labels,
     task_tag,
 )
 from .metrics import METRICS
-from .results import DECISION_KINDS, Decision, StreamResults, decisions_table
+from .results import DECISION_KINDS, Decision, LossDecision, StreamResults, decisions_table
 
-PRUNE_BAR = "L_curr_x_1_plus_eps"  # (1 + eps) * L_curr; '+' and '()' are not allowed in tags
+# HiSPO's rule as TensorBoard draws it: the new anchor is pruned iff L_prev / L_curr is at or
+# below 1 + eps. A ratio and its line stay near 1 whatever the losses' scale, where the losses
+# themselves (0.03 for one subspace, 1.9 for the other) would crowd a chart's axis. '+' and '/'
+# cannot be written in a tag's last part.
+RULE_RATIO = "L_prev_over_L_curr"
+RULE_LINE = "1_plus_eps"
 
 
 def task_row_metrics(task_index: int, row: Sequence[float]) -> dict[str, float]:
@@ -40,6 +46,17 @@ def task_row_metrics(task_index: int, row: Sequence[float]) -> dict[str, float]:
     }
     seen = row[: task_index + 1]
     metrics["stream/success/mean_seen"] = 100 * sum(seen) / len(seen)
+    return metrics
+
+
+def rule_metrics(decisions: Sequence[Decision]) -> dict[str, float]:
+    """``search/<subspace>/L_prev_over_L_curr`` and ``search/<subspace>/1_plus_eps`` of each
+    loss-rule decision that compared two losses (tasks after the first)."""
+    metrics = {}
+    for d in decisions:
+        if isinstance(d, LossDecision) and d.l_prev is not None and d.l_curr and d.eps is not None:
+            metrics[f"search/{d.subspace}/{RULE_RATIO}"] = d.l_prev / d.l_curr
+            metrics[f"search/{d.subspace}/{RULE_LINE}"] = 1.0 + d.eps
     return metrics
 
 
@@ -150,27 +167,33 @@ def chosen_hparams(settings: dict, decisions: Sequence[Decision] = ()) -> dict:
     return plain_hparams(chosen)
 
 
-def custom_scalars_layout(subspaces: Sequence[str] = ()) -> dict:
-    """TensorBoard's Custom Scalars tab: every task's forgetting curve in one chart, the anchor
-    counts in one, and per subspace the pruning rule's two sides in one (the new anchor is
-    pruned when ``L_prev`` is at or below ``(1 + eps) * L_curr``)."""
-    stream = {
-        "success on each task after each task trained (%)": [
+def custom_scalars_layout(subspaces: Sequence[str] = (), n_tasks: int = 0) -> dict:
+    """TensorBoard's Custom Scalars tab: one chart per task with its forgetting curve (the runs
+    of a folder, each in its own colour, side by side for that task), the mean over the tasks
+    trained, the anchor counts, and per subspace the pruning rule, ``L_prev / L_curr`` against
+    the line ``1 + eps`` (the new anchor is pruned at or below it)."""
+    forgetting = {
+        f"{tag}: success on {tag} after each task trained (%)": [
             "Multiline",
-            [r"stream/success/T\d+$"],
-        ],
+            [rf"stream/success/{tag}$"],
+        ]
+        for tag in task_labels(n_tasks)
+    }
+    stream = {
         "mean success on the tasks trained so far (%)": [
             "Multiline",
             [r"stream/success/mean_seen$"],
         ],
         "anchors per subspace after each task": ["Multiline", [r"anchors/[^/]+/count$"]],
     }
-    layout = {"stream": stream}
+    layout = (
+        {"forgetting curves": forgetting, "stream": stream} if forgetting else {"stream": stream}
+    )
     if subspaces:
         layout["pruning rule"] = {
-            f"{name}: L_prev against (1+eps)·L_curr (pruned where L_prev is not above)": [
+            f"{name}: L_prev / L_curr against 1 + eps (pruned at or below the line)": [
                 "Multiline",
-                [f"search/{re.escape(name)}/(L_prev|{PRUNE_BAR})$"],
+                [f"search/{re.escape(name)}/({RULE_RATIO}|{RULE_LINE})$"],
             ]
             for name in subspaces
         }
@@ -193,18 +216,20 @@ def write_hparams(
 
 def log_task_end(
     loggers: Sequence[Logger],
-    task_index: int,
-    row: Sequence[float],
+    rows: Sequence[Sequence[float]],
     picture: Figure | None,
     subspaces: Sequence[str] | None = None,
     memory: float | None = None,
 ) -> None:
-    """After task ``task_index``: the forgetting curves' next point, the memory so far
-    (``stream/MEM``, when measured) and the rollout picture. With ``subspaces`` (the names the
-    method decides on; [] for none), TensorBoard also gets the Custom Scalars layout (give them
-    once: the tab reads one layout per run)."""
+    """After the task of ``rows``' last row (R so far, one row per task trained): the
+    forgetting curves' next point, the memory so far (``stream/MEM``, when measured), the
+    rollout picture and, for TensorBoard, the forgetting curves drawn as they are (no
+    smoothing, one colour per task). With ``subspaces`` (the names the method decides on; []
+    for none), TensorBoard also gets the Custom Scalars layout (give them once: the tab reads
+    one layout per run)."""
+    task_index = len(rows) - 1
     step = task_index + 1
-    metrics = task_row_metrics(task_index, row)
+    metrics = task_row_metrics(task_index, rows[-1])
     if memory is not None:
         metrics["stream/MEM"] = memory
     for logger in loggers:
@@ -213,8 +238,10 @@ def log_task_end(
             continue
         if picture is not None:
             logger.experiment.add_figure(f"rollouts/{task_tag(task_index)}", picture, step)
+        logger.experiment.add_figure("stream/forgetting", forgetting_figure(rows), step)
         if subspaces is not None:
-            logger.experiment.add_custom_scalars(custom_scalars_layout(subspaces))
+            layout = custom_scalars_layout(subspaces, n_tasks=len(rows[-1]))
+            logger.experiment.add_custom_scalars(layout)
 
 
 def log_stream_end(

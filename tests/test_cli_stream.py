@@ -136,7 +136,13 @@ def _assert_stream_report(run_dir: Path, results: dict) -> None:
         "alpha/low",
         "rollouts/T01",
         "rollouts/T02",
+        "pruning/rule",  # the deciding values, drawn whole (no smoothing, no outlier scaling)
+        "anchors/per_subspace",
     } <= set(tags["images"])
+    forgetting = acc.Images("stream/forgetting")  # after each task, unsmoothed
+    assert [image.step for image in forgetting] == [1, 2]
+    (rule,) = acc.Images("pruning/rule")  # the second task's decisions (the first has none)
+    assert rule.step == 2
     assert {
         "stream/decisions/text_summary",
         "stream/success_matrix/text_summary",
@@ -147,8 +153,8 @@ def _assert_stream_report(run_dir: Path, results: dict) -> None:
 
 
 def _assert_custom_scalars(acc: EventAccumulator, scalars: list[str]) -> None:
-    """One chart holds every task's forgetting curve, one each subspace's L_prev and the bar it
-    is compared with, one the anchor counts; each chart's patterns match logged tags."""
+    """One chart per task holds its forgetting curve, one each subspace's L_prev / L_curr and
+    the line 1 + eps, one the anchor counts; each chart's patterns match logged tags."""
     import re
 
     from tensorboard.plugins.custom_scalar import layout_pb2
@@ -160,14 +166,17 @@ def _assert_custom_scalars(acc: EventAccumulator, scalars: list[str]) -> None:
         for category in layout.category
         for chart in category.chart
     }
-    forgetting = next(tags for title, tags in charts.items() if "on each task" in title)
-    assert sorted(forgetting) == ["stream/success/T01", "stream/success/T02"]
+    for task in ("T01", "T02"):
+        (forgetting,) = (tags for title, tags in charts.items() if title.startswith(f"{task}:"))
+        assert forgetting == [f"stream/success/{task}"]
     anchors = next(tags for title, tags in charts.items() if title.startswith("anchors"))
     assert sorted(anchors) == ["anchors/high/count", "anchors/low/count"]
     for subspace in ("high", "low"):
         rule = next(tags for title, tags in charts.items() if title.startswith(f"{subspace}:"))
-        bar = f"search/{subspace}/L_curr_x_1_plus_eps"
-        assert sorted(rule) == [bar, f"search/{subspace}/L_prev"]
+        assert sorted(rule) == [
+            f"search/{subspace}/1_plus_eps",
+            f"search/{subspace}/L_prev_over_L_curr",
+        ]
 
 
 def _assert_hparams(acc: EventAccumulator, results: dict) -> None:

@@ -9,13 +9,19 @@ import pytest
 
 from hispo_pl.benchmark.records import MethodRow
 from hispo_pl.figures import (
+    METHOD_STYLES,
+    anchor_counts_figure,
     anchor_weights_figure,
+    forgetting_figure,
     label_offsets,
+    method_style,
     perf_vs_memory_figure,
+    rule_figure,
     simplex_figure,
     stream_summary,
     success_matrix_figure,
 )
+from hispo_pl.results import LossDecision
 
 STREAM = ["pointmaze-umaze-N[500]", "pointmaze-large-N[500]", "pointmaze-umaze-PO[500]"]
 
@@ -38,6 +44,32 @@ def _inside(fig, artist) -> bool:
         and box.x1 <= page.x1 + 1
         and box.y1 <= page.y1 + 1
     )
+
+
+def _attached(fig, ax) -> None:
+    """Every method label is nearer its own point than any other point (apart from points on
+    the same spot), or joined to it by a leader line; no two labels overlap."""
+    renderer = _drawn(fig)
+    boxes = [t.get_window_extent(renderer) for t in ax.texts]
+    assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1 :])
+    points = [ax.transData.transform(t.xy) for t in ax.texts]
+    for text, box, own in zip(ax.texts, boxes, points, strict=True):
+
+        def gap(p, box=box):
+            return np.hypot(
+                max(box.x0 - p[0], 0, p[0] - box.x1), max(box.y0 - p[1], 0, p[1] - box.y1)
+            )
+
+        others = [p for p in points if np.hypot(*(p - own)) > 3]
+        assert text.arrow_patch is not None or all(gap(own) <= gap(p) for p in others), text
+
+
+def _styles(ax) -> dict[str, tuple]:
+    """Each labelled method's drawn (colour, marker), read from the figure."""
+    from matplotlib.colors import to_rgba
+
+    drawn = [(to_rgba(c.lines[0].get_color()), c.lines[0].get_marker()) for c in ax.containers]
+    return dict(zip([t.get_text() for t in ax.texts], drawn, strict=True))
 
 
 def _no_offset(fig, ax) -> bool:
@@ -67,38 +99,41 @@ def test_the_grid_s_iqm_figure_has_plain_axes_intervals_and_a_title_inside():
     bottom, top = ax.get_ylim()
     assert bottom <= 0 and top >= 100
     assert ax.get_xlabel().startswith("MEM") and ax.get_ylabel().startswith("PER IQM")
-    assert [t.get_text() for t in ax.get_legend().get_texts()] == [
-        "scn (2 streams)",
-        "ftn (2 streams)",
-        "hispo (1 stream)",
-    ]
-    assert _inside(fig, ax.title) and _inside(fig, ax.get_legend())
+    assert ax.get_xlabel().endswith("2 streams each; 1 stream: hispo")  # once, not per method
+    assert ax.get_legend() is None  # the names are beside their points, not repeated
+    assert _inside(fig, ax.title)
     caps = [line for container in ax.containers for line in container.lines[1]]
     assert caps  # each point has its interval drawn
-    # scn and ftn share a spot: each is named next to it, the names apart, each with a line
-    # to its own marker, and no two methods drawn alike
-    renderer = _drawn(fig)
+    # scn and ftn share a spot: each is named next to it, the names apart, and no two methods
+    # drawn alike
     assert sorted(t.get_text() for t in ax.texts) == ["ftn", "hispo", "scn"]
-    boxes = [t.get_window_extent(renderer) for t in ax.texts]
-    assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1 :])
-    assert all(t.arrow_patch is not None for t in ax.texts)
-    styles = {(c.lines[0].get_color(), c.lines[0].get_marker()) for c in ax.containers}
-    assert len(styles) == len(ax.containers) == 3
+    _attached(fig, ax)
+    assert len(set(_styles(ax).values())) == 3
 
 
-def test_twelve_methods_are_drawn_twelve_ways():
+def test_a_method_has_one_style_in_every_figure_whatever_its_place():
     from types import SimpleNamespace
 
     from hispo_pl.figures import iqm_vs_memory_figure
 
-    rows = [
-        SimpleNamespace(method=f"m{i}", streams=["a"], means={"MEM": 1.0 + i}, iqm=(50, 40, 60))
-        for i in range(12)
+    names = [*METHOD_STYLES, "my-method"]
+    grid = [
+        SimpleNamespace(method=m, streams=["a"], means={"MEM": 1.0 + i}, iqm=(50, 40, 60))
+        for i, m in enumerate(names)
     ]
-    (ax,) = iqm_vs_memory_figure(rows, "twelve").axes
-    styles = {(c.lines[0].get_color(), c.lines[0].get_marker()) for c in ax.containers}
-    colors = {c.lines[0].get_color() for c in ax.containers}
-    assert len(styles) == len(colors) == 12
+    (ax,) = iqm_vs_memory_figure(grid, "all").axes
+    in_grid = _styles(ax)
+    assert len(set(in_grid.values())) == len(names)  # every method drawn its own way
+    two = [_row("my-method", (2.0, 0.0), (0.5, 0.1)), _row("hispo", (1.5, 0.0), (0.9, 0.0))]
+    (ax,) = perf_vs_memory_figure(two).axes
+    assert _styles(ax) == {m: in_grid[m] for m in ("my-method", "hispo")}  # not by position
+    # a user's method: from its name, stable, and never a shipped method's look
+    assert method_style("my-method") == method_style("my-method")  # the same in each call
+    shipped = {(c, m) for m, c in METHOD_STYLES.values()}
+    for name in ("my-method", "bc-scn", "hispo-6k", "score-2", "eps-0.05-0.1"):
+        style = method_style(name)
+        assert (style["color"], style["fmt"]) not in shipped
+    assert method_style("hispo") == {"fmt": "*", "color": "tab:red"}
 
 
 def test_success_matrix_names_its_tasks_in_percent():
@@ -159,28 +194,69 @@ def test_perf_vs_memory_has_plain_axes_the_whole_success_range_and_separate_labe
     assert bottom <= 0 and top >= 100  # success on its whole range, not a truncated axis
     assert ax.get_xlabel().startswith("MEM") and ax.get_ylabel().startswith("PER (success %")
     assert ax.get_title() == "Performance vs memory: videogame-2"
-    renderer = _drawn(fig)
-    boxes = [t.get_window_extent(renderer) for t in ax.texts]
     assert sorted(t.get_text() for t in ax.texts) == ["frz", "ftn", "hispo", "hispo-6k", "scn"]
-    for i, a in enumerate(boxes):
-        for b in boxes[i + 1 :]:
-            assert not a.overlaps(b), "method labels overlap"
+    _attached(fig, ax)
+    renderer = _drawn(fig)
     frame = ax.get_window_extent(renderer)
+    boxes = [t.get_window_extent(renderer) for t in ax.texts]
     assert all(frame.x0 <= b.x0 and b.x1 <= frame.x1 and b.y1 <= frame.y1 for b in boxes)
-    legend = [t.get_text() for t in ax.get_legend().get_texts()]
-    assert "hispo-6k (1 seed, no interval)" in legend and "ftn (3 seeds)" in legend
+    assert ax.get_legend() is None  # no second list of the same names
+    assert ax.get_xlabel().endswith("3 seeds each; 1 seed (no interval): hispo-6k")
     one_seed = ax.containers[3]  # no zero-length "± 0" bar drawn for a single seed
     assert not one_seed.has_yerr and not one_seed.has_xerr
     assert ax.containers[0].has_yerr
-    assert _inside(fig, ax.get_legend())
 
 
-def test_label_offsets_stack_labels_of_coincident_points():
-    offsets = label_offsets([(100, 100), (100, 100), (100, 100)], [(20, 10)] * 3)
-    boxes = [(100 + dx, 100 + dy, 120 + dx, 110 + dy) for dx, dy in offsets]
+def test_labels_of_coincident_points_fan_out_around_them():
+    offsets = label_offsets([(100, 100)] * 5, [(20, 10)] * 5)
+    boxes = [(100 + dx, 100 + dy, 120 + dx, 110 + dy) for dx, dy, _ in offsets]
     for i, a in enumerate(boxes):
         for b in boxes[i + 1 :]:
             assert not (a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3])
+    near = [np.hypot(max(b[0] - 100, 0, 100 - b[2]), max(b[1] - 100, 0, 100 - b[3])) for b in boxes]
+    assert max(near) < 20  # around the spot, not a column running away from it
+    assert {dx > 0 for dx, _, _ in offsets} == {True, False}  # on both sides
+    assert [leader for *_, leader in offsets][:1] == [False]  # the first sits beside it
+
+
+def test_the_rule_figure_holds_every_deciding_value():
+    decisions = [
+        LossDecision(
+            task=1, subspace="high", decision="prune", eps=0.1, l_curr=0.0314, l_prev=0.0323
+        ),
+        LossDecision(task=1, subspace="low", decision="keep", eps=0.6, l_curr=0.2046, l_prev=1.909),
+        LossDecision(task=0, subspace="low", decision="first", eps=0.6, l_curr=0.21),
+    ]
+    fig = rule_figure(decisions)
+    high, low = fig.axes
+    for ax, ratio, line in ((high, 0.0323 / 0.0314, 1.1), (low, 1.909 / 0.2046, 1.6)):
+        bottom, top = ax.get_ylim()
+        assert bottom == 0 and top > max(ratio, line)  # the far ratio (9.3) is on the axis
+        texts = " ".join(t.get_text() for t in ax.texts)
+        assert f"{ratio:.2f}" in texts and f"1 + ε = {line:.2f}" in texts
+    assert "prune" in " ".join(t.get_text() for t in high.texts)
+    assert rule_figure(decisions[2:]) is None  # nothing compared yet
+
+
+def test_forgetting_and_anchor_figures_draw_each_task_apart():
+    fig = forgetting_figure([[1.0, 0.05, 0.2], [1.0, 1.0, 0.26]])
+    (ax,) = fig.axes
+    solid = [
+        line for line in ax.lines if line.get_linestyle() == "-" and line.get_label()[0] == "T"
+    ]
+    assert [line.get_label() for line in solid] == ["T01", "T02", "T03"]
+    assert len({line.get_color() for line in solid}) == 3
+    assert ax.get_ylim()[1] >= 100
+    decisions = [
+        LossDecision(task=0, subspace="high", decision="first", anchors=1),
+        LossDecision(task=1, subspace="high", decision="prune", anchors=1),
+        LossDecision(task=0, subspace="low", decision="first", anchors=1),
+        LossDecision(task=1, subspace="low", decision="keep", anchors=2),
+    ]
+    (ax,) = anchor_counts_figure(decisions).axes
+    assert ax.get_ylim()[0] == 0 and ax.get_ylim()[1] > 2  # every count on the axis
+    steps = {line.get_label(): list(line.get_ydata()) for line in ax.lines}
+    assert max(steps["low"]) > 1.9 and max(steps["high"]) < 1.1
 
 
 def test_stream_summary_prints_mem_as_a_ratio():

@@ -80,6 +80,31 @@ def test_notebook_plots_a_real_stream_run(tiny_umaze, tmp_path, monkeypatch):
     assert {f"search_{p.stem}.png" for p in searched} <= expected
     assert figures == expected
 
+    # as a user runs it: what the cells print shows, the executed notebook keeps its outputs
+    from hispo_pl.notebook import run_notebook
+
+    printed: list[str] = []
+    written = run_notebook(run_dir, echo=printed.append)
+    assert printed[0] == f"run: {run_dir.resolve()}"
+    assert any(line.startswith("figures: R_heatmap.png") for line in printed)
+    assert written == run_dir.resolve() / "figures" / "anchor_weights.ipynb"
+    executed = nbformat.read(written, as_version=4)
+    shown = [
+        o for c in executed.cells for o in c.get("outputs", []) if "image/png" in o.get("data", {})
+    ]
+    assert len(shown) == len(figures)
+
+
+def test_the_notebook_ships_and_copies_without_a_run(tmp_path, capsys):
+    from hispo_pl.notebook import main, notebook_path
+
+    assert notebook_path().read_bytes() == NOTEBOOK.read_bytes()
+    assert main(["--copy", str(tmp_path / "mine")]) == 0
+    assert (tmp_path / "mine" / "anchor_weights.ipynb").read_bytes() == NOTEBOOK.read_bytes()
+    assert main(["--copy", str(tmp_path / "mine")]) == 2  # a copy there (maybe edited) is kept
+    assert main([str(tmp_path / "no-run")]) == 2
+    assert "no such run directory" in capsys.readouterr().err
+
 
 def test_notebook_says_how_to_make_a_run(tmp_path, monkeypatch):
     with pytest.raises(CellExecutionError) as info:

@@ -13,6 +13,7 @@ from hispo_pl.stream_report import (
     chosen_hparams,
     custom_scalars_layout,
     decisions_markdown,
+    rule_metrics,
     stream_metrics,
     success_markdown,
     task_row_metrics,
@@ -174,10 +175,10 @@ def test_hparams_hold_the_settings_a_user_chose_by_name():
     assert "eps_low" not in chosen_hparams(FINGERPRINT, zero_shot)
 
 
-def test_custom_scalars_put_each_family_of_curves_in_one_chart():
+def test_custom_scalars_give_each_task_its_chart_and_the_rule_as_a_ratio():
     import re
 
-    layout = custom_scalars_layout(["high", "low"])
+    layout = custom_scalars_layout(["high", "low"], n_tasks=2)
     charts = {title: tags for category in layout.values() for title, (_, tags) in category.items()}
     logged = [
         "stream/success/T01",
@@ -188,9 +189,10 @@ def test_custom_scalars_put_each_family_of_curves_in_one_chart():
         "anchors/low/count",
         "search/high/L_prev",
         "search/high/L_curr",
-        "search/high/L_curr_x_1_plus_eps",
-        "search/low/L_prev",
-        "search/low/L_curr_x_1_plus_eps",
+        "search/high/L_prev_over_L_curr",
+        "search/high/1_plus_eps",
+        "search/low/L_prev_over_L_curr",
+        "search/low/1_plus_eps",
         "task_01/search/high/l_prev",
     ]
 
@@ -198,11 +200,31 @@ def test_custom_scalars_put_each_family_of_curves_in_one_chart():
         title = next(t for t in charts if t.startswith(title_start))
         return [tag for tag in logged if any(re.search(rx, tag) for rx in charts[title])]
 
-    assert matched("success on each task") == ["stream/success/T01", "stream/success/T02"]
+    # one chart per task: the runs of a folder are the lines of a task's chart, each its colour
+    assert matched("T01:") == ["stream/success/T01"]
+    assert matched("T02:") == ["stream/success/T02"]
+    assert list(layout)[0] == "forgetting curves"  # the first the tab shows
     assert matched("anchors per subspace") == ["anchors/high/count", "anchors/low/count"]
-    assert matched("high:") == ["search/high/L_prev", "search/high/L_curr_x_1_plus_eps"]
-    assert matched("low:") == ["search/low/L_prev", "search/low/L_curr_x_1_plus_eps"]
-    assert "pruning rule" not in custom_scalars_layout([])  # a method without decisions
+    assert matched("high:") == ["search/high/L_prev_over_L_curr", "search/high/1_plus_eps"]
+    assert matched("low:") == ["search/low/L_prev_over_L_curr", "search/low/1_plus_eps"]
+    assert "pruning rule" not in custom_scalars_layout([], n_tasks=2)  # no decisions
+
+
+def test_the_rule_is_logged_as_a_ratio_against_one_plus_eps():
+    decided = [
+        LossDecision(task=0, subspace="low", decision="first", eps=0.6, l_curr=0.21),
+        LossDecision(task=1, subspace="high", decision="prune", eps=0.1, l_curr=0.03, l_prev=0.032),
+        LossDecision(task=1, subspace="low", decision="keep", eps=0.6, l_curr=0.2, l_prev=1.9),
+    ]
+    assert rule_metrics(decided) == pytest.approx(
+        {
+            "search/high/L_prev_over_L_curr": 0.032 / 0.03,
+            "search/high/1_plus_eps": 1.1,
+            "search/low/L_prev_over_L_curr": 9.5,
+            "search/low/1_plus_eps": 1.6,
+        }
+    )
+    assert rule_metrics(decided[:1]) == {}  # the first task compares nothing
 
 
 def test_anchor_counts_as_a_table():
