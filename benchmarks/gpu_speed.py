@@ -72,8 +72,9 @@ def sync(device) -> None:
         torch.cuda.synchronize(device)
 
 
-def bare_rate(method: str, path: str, device: str, data, args, steps: int) -> float:
-    """Steps/s of the step alone, on batches drawn on ``device`` beforehand."""
+def bare_rate(method: str, path: str, device: str, data, args, steps: int):
+    """Steps/s of the step alone, on batches drawn on ``device`` beforehand, and the seconds
+    of the update that captured the step (CUDA only; else None)."""
     import torch
 
     from hispo_pl.data.sampler import DeviceHERSampler
@@ -101,14 +102,22 @@ def bare_rate(method: str, path: str, device: str, data, args, steps: int) -> fl
                 loss.backward()
                 opt.step()
 
+        capture = None
         for i in range(args.warmup):
+            capturing = path == "captured" and program.capture and i == program.warmup
+            if capturing:
+                sync(device)
+                start = time.perf_counter()
             step(pool[i % len(pool)])
+            if capturing:
+                sync(device)
+                capture = time.perf_counter() - start
         sync(device)
         start = time.perf_counter()
         for i in range(steps):
             step(pool[i % len(pool)])
         sync(device)
-        return steps / (time.perf_counter() - start)
+        return steps / (time.perf_counter() - start), capture
 
 
 def trainer_rate(method: str, path: str, device: str, data, args, steps: int, group: int = 1):
@@ -175,10 +184,13 @@ def table(device: str, batch_sizes, args, data_for, steps: int) -> list[str]:
         for method in args.methods:
             bare = {p: [] for p in PATHS}
             fit = {p: [] for p in (*PATHS, "group")}
+            captures = []
             for r in range(args.rounds):
                 order = PATHS if r % 2 == 0 else PATHS[::-1]
                 for path in order:
-                    bare[path].append(bare_rate(method, path, device, data, args, steps))
+                    rate, capture = bare_rate(method, path, device, data, args, steps)
+                    bare[path].append(rate)
+                    captures += [capture] if capture is not None else []
                     cleanup()
             for path in PATHS:  # one Trainer fit per path: start-up makes them dear
                 fit[path].append(trainer_rate(method, path, device, data, args, steps))
@@ -189,10 +201,11 @@ def table(device: str, batch_sizes, args, data_for, steps: int) -> list[str]:
                 cleanup()
             b = {k: statistics.median(v) for k, v in bare.items()}
             t = {k: statistics.median(v) if v else float("nan") for k, v in fit.items()}
+            capture = f"{1000 * statistics.median(captures):7.0f}" if captures else f"{'-':>7s}"
             lines.append(
                 f"{device:6s} {method:8s} {batch_size:5d} | "
                 + " ".join(f"{b[p]:8.1f}" for p in PATHS)
-                + f" {b['captured'] / b['fast']:5.2f} | "
+                + f" {b['captured'] / b['fast']:5.2f} {capture} | "
                 + " ".join(f"{t[p]:8.1f}" for p in PATHS)
                 + f" {t['group']:8.1f} {t['captured'] / t['fast']:5.2f}"
             )
@@ -225,9 +238,7 @@ def _worker(args, batch_size: int, barrier, queue) -> None:
     her = HERConfig(task.defaults.waysteps, task.defaults.her_temperature)
     module = build("HBC", task.env_family.obs_dim, task.env_family.action_dim).cuda().train()
     params = [p for p in module.parameters() if p.requires_grad]
-    program = TrainingProgram(
-        module.losses, params, lr_table(1e-3, "cosine", 10**6), torch.device("cuda")
-    )
+    program = TrainingProgram(module.losses, params, lr_table(1e-3, "constant", None), "cuda")
     sampler = DeviceHERSampler(episodes, her, batch_size, seed=0, device="cuda")
     pool = [sampler.sample() for _ in range(8)]
     for i in range(args.warmup):
@@ -250,6 +261,7 @@ def workers_section(args) -> list[str]:
         print(f"workers: {NO_CUDA}")
         return [f"workers: {NO_CUDA}"]
     batch_size = args.batch_sizes[0]
+    args = argparse.Namespace(**{k: v for k, v in vars(args).items() if k != "episodes"})
     ctx = mp.get_context("spawn")
     lines = []
     for n in args.workers:
@@ -385,13 +397,14 @@ def main() -> None:
     print(
         f"torch {torch.__version__}, CUDA device: {device_name}; task {task.spec}; data ready "
         f"in {data_ready:.0f} s (not counted below)\n"
-        "steps/s (median); bare: the step on batches already on the device; Trainer: a fit "
-        f"with TaskDataModule; xG: captured with --data.group {args.group}; c/f: captured / fast"
+        "steps/s (median); bare: the step on batches already on the device; capt ms: the update "
+        "that captures the graph (CUDA); Trainer: a fit with TaskDataModule; xG: captured with "
+        f"--data.group {args.group}; c/f: captured / fast"
     )
     print(
         f"{'device':6s} {'method':8s} {'batch':>5s} | {'ref':>8s} {'fast':>8s} {'captured':>8s} "
-        f"{'c/f':>5s} | {'ref':>8s} {'fast':>8s} {'captured':>8s} {'xG':>8s} {'c/f':>5s}\n"
-        f"{'':21s} | {'bare':^32s} | {'through the Trainer':^41s}",
+        f"{'c/f':>5s} {'capt ms':>7s} | {'ref':>8s} {'fast':>8s} {'captured':>8s} {'xG':>8s} "
+        f"{'c/f':>5s}\n{'':21s} | {'bare':^40s} | {'through the Trainer':^41s}",
         flush=True,
     )
     t0 = time.perf_counter()

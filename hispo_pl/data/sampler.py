@@ -191,7 +191,7 @@ class DeviceHERSampler:
     def relabel(self, i: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Goal and subgoal rows of the rows ``i``, as :func:`relabel_indices` draws them."""
         cfg, g, n = self.cfg, self.generator, len(i)
-        end = self._goal_end[i]
+        end = _rows(self._goal_end, i)
         if cfg.strategy == "exponential":
             offset = self._draw(n).exponential_(1.0 / cfg.temperature, generator=g).round_()
         elif cfg.strategy == "geometric":
@@ -200,35 +200,39 @@ class DeviceHERSampler:
             offset = self._draw(n, torch.float64).uniform_(generator=g) * (end - i + 1)
         goal = torch.minimum(i + offset.long(), end)
         jitter = torch.randint(-cfg.jitter, cfg.jitter + 1, (n,), generator=g, device=self.device)
-        subgoal = torch.clamp(i + cfg.waysteps + jitter, min=i, max=self._end[i])
+        subgoal = torch.clamp(i + cfg.waysteps + jitter, min=i, max=_rows(self._end, i))
         return goal, subgoal
 
     def sample(self, batch_size: int | None = None) -> dict[str, torch.Tensor]:
         n = batch_size or self.batch_size
         k = torch.randint(0, len(self._index), (n,), generator=self.generator, device=self.device)
-        i = self._index[k]
+        i = _rows(self._index, k)
         goal, subgoal = self.relabel(i)
-        sensed = self._agent_pos[i]
+        sensed = _rows(self._agent_pos, i)
+        previous = _rows(self._agent_pos, _rows(self._previous, i))
         batch = {
-            "observation": self._obs[i],
-            "position": self._pos[i],
+            "observation": _rows(self._obs, i),
+            "position": _rows(self._pos, i),
             "agent_position": sensed,
-            "velocity": position_velocity(
-                sensed, self._agent_pos[self._previous[i]], self._step_seconds
-            ),
-            "goal": self._pos[goal],
-            "subgoal": self._pos[subgoal],
-            "action": self._act[i],
+            "velocity": position_velocity(sensed, previous, self._step_seconds),
+            "goal": _rows(self._pos, goal),
+            "subgoal": _rows(self._pos, subgoal),
+            "action": _rows(self._act, i),
         }
         if self.transitions:
-            batch["next_observation"] = self._obs[i + 1]
-            batch["next_position"] = self._pos[i + 1]
+            batch["next_observation"] = _rows(self._obs, i + 1)
+            batch["next_position"] = _rows(self._pos, i + 1)
         return batch
 
     def sample_group(self, count: int) -> dict[str, torch.Tensor]:
         """``count`` batches in one draw: ``[count, B, ...]`` tensors."""
         batch = self.sample(count * self.batch_size)
         return {k: v.view(count, self.batch_size, *v.shape[1:]) for k, v in batch.items()}
+
+
+def _rows(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """``table[index]`` as one gather (``index_select``), which never waits for the host."""
+    return torch.index_select(table, 0, index)
 
 
 def stack_batches(batches: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
