@@ -501,11 +501,26 @@ def plot_iqm_vs_memory(rows: Sequence[AggregateRow], path: Path, title: str) -> 
 
 
 REPORTS = ("summary.md", "aggregate.md", "beside-paper.md", "sweeps.md", "cost.md")
+GROWTH_REPORTS = ("growth.md", "growth-findings.md")  # a grid with a random stream's
 
 
-def grid_reports(grid: Grid, root: Path) -> tuple[dict[str, str], list[AggregateRow]]:
+def growth(grid: Grid, committed: Committed):
+    """The growth report's data of a grid with a random stream (:mod:`.growth_report`), once
+    per set of committed runs; None for other grids."""
+    from .growth_report import growth_data, has_random_streams
+
+    if not has_random_streams(grid.streams):
+        return None
+    if "growth" not in committed.cache:
+        committed.cache["growth"] = growth_data(grid, committed)
+    return committed.cache["growth"]
+
+
+def grid_reports(
+    grid: Grid, root: Path, committed: Committed | None = None
+) -> tuple[dict[str, str], list[AggregateRow]]:
     """Every report's text (by file name; empty reports left out) and the aggregate rows."""
-    committed = Committed(root)
+    committed = committed or Committed(root)
     rows = aggregate_rows(grid, committed)
     texts = {
         "summary.md": summary_markdown(committed),
@@ -514,15 +529,28 @@ def grid_reports(grid: Grid, root: Path) -> tuple[dict[str, str], list[Aggregate
         "sweeps.md": sweeps_markdown(grid, root),
         "cost.md": cost_markdown(grid, committed),
     }
+    data = growth(grid, committed)
+    if data is not None:
+        from .growth_report import findings_markdown, growth_markdown
+
+        texts |= dict(
+            zip(
+                GROWTH_REPORTS,
+                (growth_markdown(grid, data), findings_markdown(grid, data)),
+                strict=True,
+            )
+        )
     return {k: v for k, v in texts.items() if v}, rows
 
 
 def write_grid_report(grid: Grid, root: Path, figures: bool = True) -> list[Path]:
-    """Write the reports, ``grid.json`` and (``figures``) ``per_vs_memory.png`` into
-    ``<root>/grid-<name>/``. Returns the files written."""
+    """Write the reports, ``grid.json`` and (``figures``) ``per_vs_memory.png`` (and, for a
+    grid with a random stream, the growth figures) into ``<root>/grid-<name>/``. Returns the
+    files written."""
     out = report_dir(grid, root)
     real_folder(out, root)  # a link there is replaced: the reports stay under root
-    texts, rows = grid_reports(grid, root)
+    committed = Committed(root)
+    texts, rows = grid_reports(grid, root, committed)
     written = []
     atomic_write_text(out / GRID_FILE, json.dumps(grid.to_dict(), indent=1) + "\n")
     written.append(out / GRID_FILE)
@@ -532,4 +560,9 @@ def write_grid_report(grid: Grid, root: Path, figures: bool = True) -> list[Path
     title = f"PER against memory: grid {grid.name}"
     if figures and rows and plot_iqm_vs_memory(rows, out / "per_vs_memory.png", title):
         written.append(out / "per_vs_memory.png")
+    data = growth(grid, committed)
+    if figures and data is not None:
+        from .growth_report import write_growth_figures
+
+        written += write_growth_figures(grid, data, out)
     return written

@@ -4,6 +4,8 @@ reports embedded in the docs."""
 from __future__ import annotations
 
 import json
+import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -165,8 +167,10 @@ def embed_reports(doc: Path, root: Path = Path(".")) -> str:
     that :func:`write_report` builds from the runs under ``DIR`` (relative to ``root``), without
     its title line; a grid's report (its folder holds ``grid.json``) is rebuilt from the
     grid's committed runs, a learning-curve study's (its folder holds ``curves.json``) from its
-    runs' curves, the claims (its folder holds ``claims.json``) from the two protocols' runs.
-    Keeps a documentation page equal to what its committed run files give."""
+    runs' curves, the claims (its folder holds ``claims.json``) from the two protocols' runs; a
+    grid's folder without ``grid.json`` yet (``grid-<name>``) from the grid's definition, with
+    no run or some. A report's relative links are rewritten to point from the page. Keeps a
+    documentation page equal to what its committed run files give."""
     lines, out, i = Path(doc).read_text().splitlines(), [], 0
     while i < len(lines):
         line = lines[i]
@@ -182,7 +186,8 @@ def embed_reports(doc: Path, root: Path = Path(".")) -> str:
                 f"{doc}: the report of `{line.strip()}` cannot be built ({err}); fix the "
                 "embed or the run files it names"
             ) from None
-        out += [x for x in text[1:] if x or out[-1]]  # without the title, no doubled blank
+        text = [_relink(x, target.parent, Path(doc).parent) for x in text[1:]]
+        out += [x for x in text if x or out[-1]]  # without the title, no doubled blank
         while i < len(lines) and lines[i] != EMBED_END:
             i += 1
         if i == len(lines):
@@ -190,9 +195,26 @@ def embed_reports(doc: Path, root: Path = Path(".")) -> str:
     return "\n".join(out) + "\n"
 
 
+_LINK = re.compile(r"(!?\[[^\]]*\]\()([^)\s]+)(\))")
+
+
+def _relink(line: str, report: Path, page: Path) -> str:
+    """A report's line with its relative links (written from the report's folder) pointing
+    from the page that embeds it instead."""
+
+    def move(match: re.Match) -> str:
+        target = match.group(2)
+        if "://" in target or target.startswith(("#", "/", "mailto:")):
+            return match.group(0)
+        moved = os.path.relpath(report / target, page)
+        return f"{match.group(1)}{Path(moved).as_posix()}{match.group(3)}"
+
+    return _LINK.sub(move, line)
+
+
 def _embed_text(target: Path) -> str:
     """The report an embed names, by what its folder holds (:func:`embed_reports`)."""
-    if (target.parent / GRID_FILE).exists():
+    if (target.parent / GRID_FILE).exists() or _grid_before_runs(target.parent) is not None:
         return _grid_report_text(target)
     if (target.parent / CURVES_FILE).exists():
         return _curves_report_text(target)
@@ -226,11 +248,30 @@ def _grid_report_text(target: Path) -> str:
     from .grid import grid_from_dict
     from .grid_report import grid_reports
 
-    spec = json.loads((target.parent / GRID_FILE).read_text())
-    texts, _ = grid_reports(grid_from_dict(spec, spec.get("name", "grid")), target.parent.parent)
+    grid = _grid_before_runs(target.parent)
+    if grid is None:
+        spec = json.loads((target.parent / GRID_FILE).read_text())
+        grid = grid_from_dict(spec, spec.get("name", "grid"))
+    texts, _ = grid_reports(grid, target.parent.parent)
     if target.name not in texts:
         raise ValueError(f"{target}: not a report of its grid ({', '.join(texts)})")
     return texts[target.name]
+
+
+def _grid_before_runs(folder: Path):
+    """The grid whose report folder ``folder`` (``grid-<name>``) will be, read from its
+    definition (``configs/grids/<name>.yaml``) while no report of it is written there (no
+    ``grid.json``): a page can embed the report of a grid before its runs, which then says
+    what is missing. None for a folder with a ``grid.json``, or of no known grid."""
+    from ..config_files import config_root
+    from .grid import GRIDS_DIR, load_grid
+
+    name = folder.name.removeprefix("grid-")
+    if (folder / GRID_FILE).exists() or not folder.name.startswith("grid-"):
+        return None
+    if not (config_root() / GRIDS_DIR / f"{name}.yaml").is_file():
+        return None
+    return load_grid(name, config_root())
 
 
 def _stream_report_text(target: Path) -> str:
