@@ -40,9 +40,13 @@ GRID = {
 
 def test_the_paper_grid_loads_with_every_method_of_its_tables():
     grid = gr.load_grid("paper", ROOT / "configs")
-    assert grid.streams == ("pointmaze-1", "pointmaze-2", "videogame-1", "videogame-2")
+    four = ("pointmaze-1", "pointmaze-2", "videogame-1", "videogame-2")
+    assert grid.streams == (*four, "antmaze-1", "antmaze-2")
+    assert grid.aggregates == {"four-streams": four}  # the aggregate before AntMaze, kept
+    assert gr.grid_streams(grid, "antmaze") == ["antmaze-1", "antmaze-2"]
     assert set(grid.methods) == {
-        "sc1", "scn", "ft1", "ftn", "frz", "l2", "ewc", "pnn", "hispo", "csp", "cspo", "hilow"
+        "sc1", "scn", "ft1", "ftn", "frz", "l2", "ewc", "pnn", "hispo", "csp", "cspo", "hilow",
+        "hispo-pac",
     }  # fmt: skip
     assert grid.seeds == (0, 1, 2)
     for method in ("l2", "ewc"):
@@ -60,6 +64,8 @@ def test_the_paper_grid_loads_with_every_method_of_its_tables():
         ({"method": ["scn"]}, "unknown key(s) method"),
         ({"seeds": [-1]}, "`seeds` is a count or a list"),
         ({"parts": {"x": ["antmaze-1"]}}, "part x names streams the grid does not list"),
+        ({"aggregates": {"y": ["antmaze-1"]}}, "aggregate y names streams the grid does not"),
+        ({"aggregates": {"y": []}}, "each aggregate of `aggregates` is a list of the grid's"),
         ({"sweeps": {"ewc": {"key": "k", "values": [1]}}}, "sweep of ewc, which is not among"),
         ({"sweeps": {"l2": {"key": "k"}}}, "sweep of l2 needs `key` and `values`"),
     ],
@@ -282,6 +288,26 @@ def test_grid_report_embeds_rebuild_from_committed_files(tmp_path, monkeypatch):
     rebuilt = embed_reports(doc, Path("/"))
     assert "stale" not in rebuilt and "| hispo | 2 of 2 |" in rebuilt
     assert rebuilt == embed_reports(doc, Path("/"))  # the intervals are seeded
+
+
+def test_a_named_aggregate_is_the_grid_over_its_streams_alone(tmp_path):
+    pytest.importorskip("rliable")
+    root = tmp_path / "results"
+    for stream in ("pointmaze-1", "pointmaze-2"):
+        shutil.copytree(ROOT / "docs/results" / stream / "scn", root / stream / "scn")
+    raw = {**GRID, "methods": ["scn"], "seeds": 3, "sweeps": {}}
+    grid = gr.grid_from_dict({**raw, "aggregates": {"first": ["pointmaze-1"]}}, "g")
+    gp.write_grid_report(grid, root, figures=False)
+    whole = (root / "grid-g/aggregate.md").read_text()
+    first = (root / "grid-g/aggregate-first.md").read_text()
+    assert "| scn | 2 of 2 |" in whole and "| scn | 1 of 1 |" in first
+    assert first.startswith("# Aggregate: grid g, first\n")
+    # the named aggregate is what a grid of that stream alone reports
+    alone = gr.grid_from_dict({**raw, "streams": ["pointmaze-1"], "parts": {}}, "g, first")
+    committed = gp.Committed(root)
+    assert first == gp.aggregate_markdown(alone, gp.aggregate_rows(alone, committed))
+    texts, _ = gp.grid_reports(grid, root)
+    assert texts["aggregate-first.md"] == first  # what --report-only --docs rebuilds
 
 
 def test_iqm_interval_is_seeded_and_leaves_numpy_alone():

@@ -101,3 +101,27 @@ def test_transfer_must_come_before_extension(tiny_umaze):
     )
     with pytest.raises(ValueError, match="before AnchorExtension"):
         trainer.fit(m, datamodule=TaskDataModule(task="pointmaze-umaze-N[3]", batch_size=8))
+
+
+def test_the_grid_report_counts_a_runs_zero_shot_decisions(tiny_umaze, tmp_path):
+    """The zero-shot report (beside the paper's zero-shot section) reads a real run's tests."""
+    import shutil
+
+    from hispo_pl.benchmark.grid_report import Committed
+    from hispo_pl.benchmark.transfer_report import zero_shot_markdown
+
+    _, _, run_dir = _fit(tmp_path, eps_high=100.0, eps_low=100.0, delta=0.0)
+    committed = tmp_path / "committed" / "tiny"
+    for seed in (0, 1):  # two seeds of the same run: the counts are summed over seeds
+        dest = committed / "hispo-pac" / f"seed{seed}"
+        dest.mkdir(parents=True)
+        for name in ("results.json", "decisions.jsonl"):
+            shutil.copy(run_dir / name, dest / name)
+    text = zero_shot_markdown(Committed(committed.parent), ["tiny", "absent"])
+    (row,) = [line for line in text.splitlines() if line.startswith("| tiny |")]
+    per = 100 * sum(json.loads((run_dir / "results.json").read_text())["R"][-1]) / 2
+    # both subspaces taken on each seed's task 2: no anchor grown, no HiSPO run to compare
+    assert (
+        row == f"| tiny | 2 | high 2 of 2, low 2 of 2 | 2 | {per:.1f} ± 0.0 |  | 1.00 ± 0.00 |  |"
+    )
+    assert "| absent | 0 | not run yet |" in text

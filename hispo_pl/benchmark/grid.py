@@ -67,6 +67,8 @@ class Grid:
     sweeps: dict[str, Sweep] = field(default_factory=dict)
     steps_per_task: int | None = None
     extra: tuple[str, ...] = ()  # fit arguments of every run
+    # named sets of the streams whose aggregate is reported apart, beside the whole grid's
+    aggregates: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {
@@ -87,6 +89,11 @@ class Grid:
             },
             "steps_per_task": self.steps_per_task,
             "extra": list(self.extra),
+            **(
+                {"aggregates": {k: list(v) for k, v in self.aggregates.items()}}
+                if self.aggregates
+                else {}
+            ),
         }
 
 
@@ -129,7 +136,8 @@ def grid_from_dict(raw: dict, name: str, where: str = "grid") -> Grid:
     if not isinstance(raw, dict):
         raise ConfigError(f"{where}: a grid is a mapping with streams, methods and seeds")
     unknown = set(raw) - {
-        "name", "streams", "methods", "seeds", "parts", "sweeps", "steps_per_task", "extra"
+        "name", "streams", "methods", "seeds", "parts", "sweeps", "steps_per_task", "extra",
+        "aggregates",
     }  # fmt: skip
     if unknown:
         raise ConfigError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
@@ -139,13 +147,8 @@ def grid_from_dict(raw: dict, name: str, where: str = "grid") -> Grid:
     seeds = list(range(seeds)) if isinstance(seeds, int) else seeds
     if not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
         raise ConfigError(f"{where}: `seeds` is a count or a list of non-negative integers")
-    parts_raw = _mapping(raw, "parts", where, "part names to lists of streams")
-    if not all(isinstance(v, list) for v in parts_raw.values()):
-        raise ConfigError(f"{where}: each part of `parts` is a list of the grid's streams")
-    parts = {str(k): tuple(str(s) for s in v) for k, v in parts_raw.items()}
-    for part, members in parts.items():
-        if set(members) - set(streams):
-            raise ConfigError(f"{where}: part {part} names streams the grid does not list")
+    parts = _stream_sets(raw, "parts", "part", streams, where)
+    aggregates = _stream_sets(raw, "aggregates", "aggregate", streams, where)
     sweeps = {}
     for method, spec in _mapping(raw, "sweeps", where, "methods to their sweep").items():
         if method not in methods:
@@ -186,7 +189,23 @@ def grid_from_dict(raw: dict, name: str, where: str = "grid") -> Grid:
         sweeps,
         None if steps is None else int(steps),
         tuple(extra),
+        aggregates,
     )
+
+
+def _stream_sets(raw: dict, key: str, what: str, streams: Sequence[str], where: str) -> dict:
+    """``raw[key]``: names to lists of the grid's streams (a part, an aggregate's streams).
+
+    Raises:
+        ConfigError: not such a mapping, or a stream the grid does not list."""
+    sets = _mapping(raw, key, where, "names to lists of streams")
+    if not all(isinstance(v, list) and v for v in sets.values()):
+        raise ConfigError(f"{where}: each {what} of `{key}` is a list of the grid's streams")
+    named = {str(k): tuple(str(s) for s in v) for k, v in sets.items()}
+    for name, members in named.items():
+        if set(members) - set(streams):
+            raise ConfigError(f"{where}: {what} {name} names streams the grid does not list")
+    return named
 
 
 def load_grid(spec: str, config_dir: Path) -> Grid:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
 
@@ -22,6 +22,7 @@ from . import paper
 from .grid import GRID_FILE, SWEEPS_DIR, Grid
 from .records import MethodRow, RunRecord, aggregate, load_records, mean_std, per_run_metrics
 from .tables import derived_footnote, derived_method, run_minutes
+from .transfer_report import PAC_METHOD, zero_shot_markdown
 
 BOOTSTRAP_REPS = 2000  # stratified bootstrap resamples per interval
 BOOTSTRAP_SEED = 0
@@ -138,6 +139,15 @@ def aggregate_rows(grid: Grid, committed: Committed) -> list[AggregateRow]:
         ]
         rows.append(AggregateRow(method, streams, means, iqm_interval(scores), sources))
     return rows
+
+
+def aggregate_subgrids(grid: Grid) -> dict[str, Grid]:
+    """Per named aggregate of ``grid`` (its ``aggregates``), the grid over those streams alone,
+    named so that its report says which streams it is of."""
+    return {
+        name: replace(grid, name=f"{grid.name}, {name}", streams=streams, aggregates={})
+        for name, streams in grid.aggregates.items()
+    }
 
 
 def _num(value: float | None, digits: int = 1) -> str:
@@ -500,7 +510,6 @@ def plot_iqm_vs_memory(rows: Sequence[AggregateRow], path: Path, title: str) -> 
     return True
 
 
-REPORTS = ("summary.md", "aggregate.md", "beside-paper.md", "sweeps.md", "cost.md")
 GROWTH_REPORTS = ("growth.md", "growth-findings.md")  # a grid with a random stream's
 
 
@@ -525,9 +534,16 @@ def grid_reports(
     texts = {
         "summary.md": summary_markdown(committed),
         "aggregate.md": aggregate_markdown(grid, rows),
+        **{
+            f"aggregate-{name}.md": aggregate_markdown(sub, aggregate_rows(sub, committed))
+            for name, sub in aggregate_subgrids(grid).items()
+        },
         "beside-paper.md": beside_paper_markdown(committed, grid.streams),
         "sweeps.md": sweeps_markdown(grid, root),
         "cost.md": cost_markdown(grid, committed),
+        "zero-shot.md": zero_shot_markdown(committed, grid.streams)
+        if PAC_METHOD in grid.methods
+        else "",
     }
     data = growth(grid, committed)
     if data is not None:
@@ -560,6 +576,10 @@ def write_grid_report(grid: Grid, root: Path, figures: bool = True) -> list[Path
     title = f"PER against memory: grid {grid.name}"
     if figures and rows and plot_iqm_vs_memory(rows, out / "per_vs_memory.png", title):
         written.append(out / "per_vs_memory.png")
+    for name, sub in aggregate_subgrids(grid).items() if figures else ():
+        path, sub_rows = out / f"per_vs_memory-{name}.png", aggregate_rows(sub, committed)
+        if sub_rows and plot_iqm_vs_memory(sub_rows, path, f"PER against memory: {sub.name}"):
+            written.append(path)
     data = growth(grid, committed)
     if figures and data is not None:
         from .growth_report import write_growth_figures
