@@ -36,3 +36,30 @@ class TrainingDivergedError(UserError, FloatingPointError):
 
 class Interrupted(KeyboardInterrupt):
     """Ctrl-C, with what was kept and how to go on as its message."""
+
+
+class ResumableWork:
+    """Marks the errors and interrupts raised inside it as leaving work that a rerun of the
+    same command resumes (a stream's finished tasks, a benchmark's finished runs), so that the
+    message for a full disk or a stop says so there, and only there.
+
+    Example:
+        >>> try:
+        ...     with ResumableWork():
+        ...         raise OSError(28, "No space left on device")
+        ... except OSError as err:
+        ...     resumable(err)
+        True
+    """
+
+    def __enter__(self) -> ResumableWork:
+        return self
+
+    def __exit__(self, kind, err, traceback) -> None:
+        if isinstance(err, OSError | KeyboardInterrupt):
+            err.resumable = True
+
+
+def resumable(err: BaseException) -> bool:
+    """Whether ``err`` was raised inside :class:`ResumableWork`."""
+    return getattr(err, "resumable", False) is True

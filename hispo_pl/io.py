@@ -8,7 +8,10 @@ through one of these."""
 
 from __future__ import annotations
 
+import contextlib
 import os
+import shutil
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO
@@ -18,10 +21,30 @@ from .errors import LinkedFileError, UserError
 
 def replace_link(path: str | Path) -> None:
     """Remove ``path`` if it is a symbolic link, so that what is written there next makes a
-    new file in its folder instead of writing where the link points."""
+    new file in its folder instead of writing where the link points; a line says so."""
     path = Path(path)
     if path.is_symlink():
+        target = os.readlink(path)
         path.unlink()
+        print(
+            f"[hispo-pl] {path} was a symbolic link to {target}; hispo-pl writes a new file "
+            "there instead, and nothing where the link pointed",
+            file=sys.stderr,
+        )
+
+
+LIGHTNING_FILES = ("hparams.yaml", "checkpoints")  # what Lightning writes in a log folder
+
+
+def files_in_log_dir(trainer) -> None:
+    """Keep what Lightning writes by name in a Trainer's log folder inside it: its
+    ``hparams.yaml`` (written when no file is there, so through a dangling link) and its
+    ``checkpoints/`` folder; a link at either name is replaced (:func:`replace_link`).
+    (``config.yaml``: :class:`~hispo_pl.fit.SaveConfig`; event files get a new name each.)"""
+    log_dir = trainer.log_dir
+    if log_dir:
+        for name in LIGHTNING_FILES:
+            replace_link(Path(log_dir) / name)
 
 
 def atomic_save(path: str | Path, save: Callable[[Path], None]) -> None:
@@ -76,12 +99,35 @@ def write_figure(fig, path: str | Path, **savefig_kwargs) -> None:
     atomic_save(path, lambda tmp: fig.savefig(tmp, format=fmt, **savefig_kwargs))
 
 
+@contextlib.contextmanager
+def named_errors(path: str | Path):
+    """An error of the file system raised without a path inside (a write to an open file: a
+    full disk) names ``path``, so the message says which file."""
+    try:
+        yield
+    except OSError as err:
+        if err.filename is not None or err.errno is None:
+            raise
+        raise OSError(err.errno, err.strerror, str(path)) from err
+
+
 def open_append(path: str | Path, mode: str = "a") -> IO:
     """``path`` opened to add to its end (``mode`` ``"a"`` or ``"a+"``), created if missing;
-    a link there is replaced by a new file rather than appended through."""
+    a link there is replaced by a new file rather than appended through. Write to it inside
+    :func:`named_errors`."""
     replace_link(path)
     flags = os.O_CREAT | os.O_APPEND | (os.O_RDWR if "+" in mode else os.O_WRONLY)
     return os.fdopen(os.open(path, flags | getattr(os, "O_NOFOLLOW", 0), 0o666), mode)
+
+
+def remove_tree(path: str | Path) -> None:
+    """Remove the folder ``path`` and what it holds, if it is there; a link there is removed
+    itself, never what it points to."""
+    path = Path(path)
+    if path.is_symlink() or path.is_file():
+        path.unlink()
+    elif path.is_dir():
+        shutil.rmtree(path)
 
 
 def make_folder(path: str | Path) -> Path:

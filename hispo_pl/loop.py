@@ -10,9 +10,12 @@ safe (the run directory's lock, the fingerprint check, the task-in-progress chec
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import math
 import os
 import signal
+import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -22,8 +25,8 @@ import numpy as np
 
 from .console import lightning_notices_once, quiet_lightning_notices, say, task_header, task_summary
 from .data.datamodule import TaskDataModule
-from .errors import Interrupted
-from .io import atomic_save
+from .errors import Interrupted, ResumableWork
+from .io import atomic_save, files_in_log_dir
 from .metrics import continual_metrics, memory_ratio, module_bytes, results_row_table
 from .modules.hispo import SubspacePolicy
 from .results import StreamResults
@@ -42,16 +45,46 @@ def task_phases(fit_seconds: float, callback_seconds: dict[str, float]) -> dict[
     return phases
 
 
+DISK_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EIO)  # a disk's, not a path's
+
+
+@contextlib.contextmanager
+def _event_writer_errors_said_once():
+    """TensorBoard's writer thread prints the error of the disk that stopped it, which the
+    Trainer raises again in this thread: it is said once, here, in one paragraph."""
+    hook = threading.excepthook
+
+    def quiet(args) -> None:
+        disk = getattr(args.exc_value, "errno", None) in DISK_ERRORS
+        if not (disk and type(args.thread).__name__ == "_AsyncWriterThread"):
+            hook(args)
+
+    threading.excepthook = quiet
+    try:
+        yield
+    finally:
+        threading.excepthook = hook
+
+
 def fit_interruptibly(trainer: L.Trainer, module: L.LightningModule, datamodule, **kwargs) -> None:
     """``trainer.fit``, where Ctrl-C raises ``KeyboardInterrupt`` again: Lightning turns it into
-    ``sys.exit(1)`` after its own shutdown and leaves SIGINT ignored."""
+    ``sys.exit(1)`` after its own shutdown and leaves SIGINT ignored. The files Lightning
+    writes by name stay in the logger's folder (:func:`~hispo_pl.io.files_in_log_dir`), and an
+    error of the file system without a path (TensorBoard's writer gives none) names that
+    folder."""
+    files_in_log_dir(trainer)
     try:
-        trainer.fit(module, datamodule=datamodule, **kwargs)
+        with _event_writer_errors_said_once():
+            trainer.fit(module, datamodule=datamodule, **kwargs)
     except SystemExit:
         if not trainer.interrupted:
             raise
         signal.signal(signal.SIGINT, signal.default_int_handler)
         raise KeyboardInterrupt from None
+    except OSError as err:  # the writer of TensorBoard's event files says no path
+        if err.filename is not None or err.errno not in DISK_ERRORS or trainer.log_dir is None:
+            raise
+        raise OSError(err.errno, err.strerror, trainer.log_dir) from err
 
 
 class ContinualLoop:
@@ -133,10 +166,20 @@ class ContinualLoop:
     # --- the loop ---------------------------------------------------------------------------
 
     def run(self) -> dict:
-        """Train the tasks not finished yet, holding the run directory's lock throughout."""
+        """Train the tasks not finished yet, holding the run directory's lock throughout. A
+        stop or an error of the machine at any point leaves what a rerun resumes, and says so
+        (a stop outside a task too: while the lock is taken or the results are written)."""
         self.run_dir.path.mkdir(parents=True, exist_ok=True)
-        with RunDirLock(self.run_dir), lightning_notices_once():
-            return self._run()
+        try:
+            with ResumableWork(), RunDirLock(self.run_dir), lightning_notices_once():
+                return self._run()
+        except KeyboardInterrupt as err:
+            if isinstance(err, Interrupted):
+                raise
+            raise Interrupted(
+                f"interrupted; the tasks finished so far are kept in {self.run_dir}. Rerun the "
+                "same command to resume."
+            ) from None
 
     def _run(self) -> dict:
         self.run_dir.remove_stale_temporaries()  # of writes a kill cut short; the lock is ours

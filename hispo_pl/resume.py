@@ -4,6 +4,7 @@ resumes a task mid-way with the random state it had."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import socket
@@ -17,7 +18,7 @@ import torch
 
 from .config import upgrade_fingerprint
 from .errors import RunDirError
-from .io import atomic_save, open_append
+from .io import atomic_save, named_errors, open_append
 from .run_checks import upgrade_callback_keys
 from .rundir import RunDir
 
@@ -132,13 +133,19 @@ class RunDirLock:
                 f"{self.path.parent} is in use by another run ({holder}); wait for it to end, "
                 "or give this run another directory (e.g. --trainer.logger.init_args.version)"
             ) from None
-        f.seek(0)
-        f.truncate()
-        f.write(
-            f"pid {os.getpid()} on {socket.gethostname()}, started "
-            f"{time.strftime('%Y-%m-%d %H:%M:%S')}: {' '.join(sys.argv)}\n"
-        )
-        f.flush()
+        try:
+            with named_errors(self.path):  # a full disk says which file
+                f.seek(0)
+                f.truncate()
+                f.write(
+                    f"pid {os.getpid()} on {socket.gethostname()}, started "
+                    f"{time.strftime('%Y-%m-%d %H:%M:%S')}: {' '.join(sys.argv)}\n"
+                )
+                f.flush()
+        except BaseException:
+            with contextlib.suppress(OSError):  # what it could not write, it cannot flush
+                f.close()  # releases the lock
+            raise
         self._file = f
         return self
 

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import RunDirError
-from .io import atomic_save, atomic_write_text, open_append
+from .io import atomic_save, atomic_write_text, named_errors, open_append, real_folder
 from .results import Decision, StreamResults, TaskResult
 
 
@@ -285,7 +285,7 @@ class RunDir:
 
     def append_decisions(self, records: Iterable[Decision | dict]) -> None:
         self.path.mkdir(parents=True, exist_ok=True)
-        with open_append(self.decisions_file) as f:
+        with named_errors(self.decisions_file), open_append(self.decisions_file) as f:
             for record in records:
                 if isinstance(record, Decision):
                     record = record.to_json()
@@ -308,7 +308,7 @@ class RunDir:
     def write_search(self, task: int, subspace: str, **arrays) -> None:
         """The search's candidates and losses of one subspace at the end of ``task``."""
         path = self.search_file(task, subspace)
-        path.parent.mkdir(parents=True, exist_ok=True)
+        real_folder(path.parent, self.path)  # a link at search/ is replaced, not written into
 
         def save(tmp: Path) -> None:
             with open(tmp, "xb") as f:  # a file object: np.savez adds .npz to a name

@@ -2,17 +2,38 @@
 runs) ends a command the way Ctrl-C does, and the request stays until the command stops.
 
 The signal raises ``KeyboardInterrupt`` wherever Python is; raised while Python runs a
-finaliser (an object's ``__del__``, a weakref callback), it is printed as "Exception ignored"
-and lost. So the request is kept here, and :class:`~hispo_pl.console.StopWhenAsked`, among
-every Trainer's callbacks, raises it again at the next training step or task end. (No
-Lightning here: ``hispo-pl --help`` imports this module.)"""
+finaliser (an object's ``__del__``, a weakref callback), Python drops it and would print
+"Exception ignored". So the request is kept here, and a dropped interrupt is not printed but
+delivered again a moment later, out of the finaliser, whatever the command is doing (every
+verb stops, not only a training step). :class:`~hispo_pl.console.StopWhenAsked`, among every
+Trainer's callbacks, also raises it at the next training step or task end. (No Lightning
+here: ``hispo-pl --help`` imports this module.)"""
 
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
+import sys
+import threading
 
 _received: list[int] = []  # the signals asking the command to stop, while it runs
+_running = threading.Lock()  # held while the handler is swapped back: no delivery then
+AGAIN_AFTER_S = 0.01  # a dropped stop is delivered again after this long
+
+
+def _deliver_again() -> None:
+    """Send the stop a finaliser dropped once more, shortly, from another thread (the
+    finaliser may still run now); not after the command ended."""
+
+    def send() -> None:
+        with _running:
+            if _received:
+                os.kill(os.getpid(), _received[0])
+
+    timer = threading.Timer(AGAIN_AFTER_S, send)
+    timer.daemon = True
+    timer.start()
 
 
 @contextlib.contextmanager
@@ -30,16 +51,25 @@ def terminate_as_interrupt():
         _received.append(signum)
         raise KeyboardInterrupt
 
+    def kept_not_ignored(unraisable) -> None:
+        if issubclass(unraisable.exc_type, KeyboardInterrupt) and _received:
+            _deliver_again()  # the stop a finaliser dropped: not printed, not lost
+            return
+        hook(unraisable)
+
     try:
         previous = signal.signal(signal.SIGTERM, interrupt)
     except ValueError:  # not the main thread: leave signals alone
         yield received
         return
+    hook, sys.unraisablehook = sys.unraisablehook, kept_not_ignored
     try:
         yield received
     finally:
-        signal.signal(signal.SIGTERM, previous)
-        _received.clear()
+        with _running:
+            signal.signal(signal.SIGTERM, previous)
+            sys.unraisablehook = hook
+            _received.clear()
 
 
 def stop_requested() -> bool:

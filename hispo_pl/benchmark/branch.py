@@ -168,7 +168,7 @@ def _write_branch(
 ) -> None:
     import torch
 
-    from ..io import atomic_save, copy_files
+    from ..io import atomic_save, copy_files, real_folder
     from ..modules.hbc import read_checkpoint
 
     src, out = RunDir(source), RunDir(target)
@@ -191,7 +191,7 @@ def _write_branch(
         for subspace in dict.fromkeys(d.subspace for d in decisions if d.task == i):
             search = src.search_file(i, subspace)  # the search's candidates, for the notebook
             if search.is_file():
-                out.search_file(i, subspace).parent.mkdir(parents=True, exist_ok=True)
+                real_folder(out.search_file(i, subspace).parent, out.path)
                 copy_files([(search, out.search_file(i, subspace))])
     out.decisions_file.unlink(missing_ok=True)
     out.append_decisions([_with_eps(d, eps) for d in decisions])

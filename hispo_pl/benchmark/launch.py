@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
-from ..io import open_append
+from ..io import named_errors, open_append
 from ..progress import Progress
 from ..rundir import RunDir
 from .plan import PlannedRun
@@ -42,7 +42,7 @@ def execute_run(
     log.parent.mkdir(parents=True, exist_ok=True)
     command = [sys.executable, *argv]
     start = time.perf_counter()
-    with open_append(log) as f:
+    with named_errors(log), open_append(log) as f:
         f.write(f"=== {time.strftime('%Y-%m-%d %H:%M:%S')} {shlex.join(command)}\n")
         f.flush()
         proc = subprocess.Popen(

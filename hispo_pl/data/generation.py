@@ -15,7 +15,16 @@ import numpy as np
 
 from ..envs import make_env
 from ..envs.family import family_behaviour
-from ..errors import UserError
+from ..errors import ResumableWork, UserError
+from ..io import (
+    atomic_save,
+    atomic_write_text,
+    copy_files,
+    named_errors,
+    open_append,
+    real_folder,
+    remove_tree,
+)
 from ..progress import Progress
 from ..tasks import Task, parse_task
 from .datasets import (
@@ -120,12 +129,13 @@ def package_requirements() -> list[str]:
 
 def _swap_in(new: Path, final: Path, old: Path) -> None:
     """Put the complete dataset ``new`` at ``final``, moving the one it replaces to ``old``
-    first (a directory cannot be replaced in one rename) and deleting it only afterwards."""
-    shutil.rmtree(old, ignore_errors=True)
-    if final.exists():
+    first (a directory cannot be replaced in one rename) and deleting it only afterwards. A
+    link at ``final`` or ``old`` is moved or removed itself, never what it points to."""
+    remove_tree(old)
+    if os.path.lexists(final):
         os.replace(final, old)
     os.replace(new, final)
-    shutil.rmtree(old, ignore_errors=True)
+    remove_tree(old)
 
 
 def generate_dataset(
@@ -150,7 +160,8 @@ def generate_dataset(
     incomplete one found in place (:func:`dataset_problem`) is rebuilt.
     """
     task = parse_task(name)
-    with dataset_lock(task.dataset_name, progress):  # a second process waits, then reuses it
+    # a second process waits, then reuses it; the episodes collected are kept for a rerun
+    with ResumableWork(), dataset_lock(task.dataset_name, progress):
         return _generate(task, episodes, seed, noise, overwrite, progress, expert_weights)
 
 
@@ -168,12 +179,12 @@ def generate_missing(source: str | Task) -> None:
 @contextlib.contextmanager
 def dataset_lock(name: str, say: bool = True):
     """Hold the dataset ``name``'s build lock (``fcntl.flock`` on ``.locks/NAME.lock`` in the
-    Minari root): two processes that need the same missing dataset never write it at once."""
+    Minari root): two processes that need the same missing dataset never write it at once.
+    Links under the root are replaced, never written through (:func:`_scratch_folder`)."""
     import fcntl
 
-    path = dataset_path("") / ".locks" / f"{name}.lock"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a") as f:
+    path = _scratch_folder(".locks") / f"{name}.lock"
+    with open_append(path) as f:
         try:
             fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -184,6 +195,24 @@ def dataset_lock(name: str, say: bool = True):
             yield
         finally:
             fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def _scratch_folder(*parts: str) -> Path:
+    """The folder ``parts`` under the Minari root, where hispo-pl keeps its locks and builds
+    datasets: made as real folders, a link on the way replaced (the root itself may be a
+    link: it is where the user keeps datasets)."""
+    root = dataset_path("")
+    return real_folder(root.joinpath(*parts), root)
+
+
+def _save_episode(path: Path, episode: dict) -> None:
+    """One collected episode, written atomically (a kill leaves none or all of it)."""
+
+    def save(tmp: Path) -> None:
+        with open(tmp, "xb") as f:  # a file object: np.savez adds .npz to a name
+            np.savez(f, **episode)
+
+    atomic_save(path, save)
 
 
 def _generate(task, episodes, seed, noise, overwrite, progress, expert_weights) -> str:
@@ -206,14 +235,13 @@ def _generate(task, episodes, seed, noise, overwrite, progress, expert_weights) 
             )
         return dataset_id
     if problem not in (None, "missing"):  # cut short by a kill while it was written
-        shutil.rmtree(final)
+        remove_tree(final)
     # with --overwrite the stored dataset stays usable until the new one is complete
     steps = task.defaults.max_episode_steps
     behaviour = family_behaviour(task)
     env = behaviour.make_collection_env(task)
     expert = make_expert(name, env, expert_weights)
-    staging = dataset_path("") / ".staging" / f"{name}-seed{seed}-noise{noise}"
-    staging.mkdir(parents=True, exist_ok=True)
+    staging = _scratch_folder(".staging", f"{name}-seed{seed}-noise{noise}")
     ok = failed = flips = kept_steps = 0
     with Progress(f"collecting {name}", episodes, "episodes", progress) as collecting:
         for k in range(episodes):
@@ -222,9 +250,7 @@ def _generate(task, episodes, seed, noise, overwrite, progress, expert_weights) 
                 rng = np.random.default_rng([seed, k])
                 ep_seed = seed * 1_000_003 + k
                 ep = behaviour.collect_episode(env, expert, rng, ep_seed, noise, steps)
-                tmp = path.with_suffix(".tmp.npz")
-                np.savez(tmp, **ep)
-                tmp.replace(path)
+                _save_episode(path, ep)
             collecting.update()
     buffers = []
     for k in range(episodes):
@@ -257,9 +283,10 @@ def _generate(task, episodes, seed, noise, overwrite, progress, expert_weights) 
         "steps": kept_steps,
     }
     description = behaviour.describe_dataset(task, expert, settings, stats)
-    build = dataset_path("") / ".staging" / f"build-{name}"  # a killed build is redone
-    shutil.rmtree(build, ignore_errors=True)
-    with _minari_root(build):  # the dataset is written here, then moved into place whole
+    build = _scratch_folder(".staging", f"build-{name}")  # a killed build is redone
+    remove_tree(build)
+    # the dataset is written here, then moved into place whole; HDF5's errors name no file
+    with _minari_root(build), named_errors(build):
         minari.create_dataset_from_buffers(
             dataset_id=dataset_id,
             buffer=buffers,
@@ -272,11 +299,12 @@ def _generate(task, episodes, seed, noise, overwrite, progress, expert_weights) 
             description=description,
             requirements=package_requirements(),
         )
-        (build / dataset_id / GENERATION_FILE).write_text(json.dumps(settings))
-    final.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(build / dataset_id / GENERATION_FILE, json.dumps(settings))
+    real_folder(final.parent, dataset_path(""))
     namespace_meta = build / NAMESPACE / "namespace_metadata.json"
-    if namespace_meta.exists() and not (final.parent / namespace_meta.name).exists():
-        shutil.copy(namespace_meta, final.parent / namespace_meta.name)
+    kept = final.parent / namespace_meta.name
+    if namespace_meta.exists() and (kept.is_symlink() or not kept.exists()):
+        copy_files([(namespace_meta, kept)])
     _swap_in(build / dataset_id, final, dataset_path("") / ".staging" / f"replaced-{name}")
     shutil.rmtree(build, ignore_errors=True)
     shutil.rmtree(staging, ignore_errors=True)

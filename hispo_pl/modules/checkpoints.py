@@ -28,22 +28,31 @@ def read_checkpoint(path: str | Path) -> dict:
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as err:
-        found = re.search(r"Unsupported global: GLOBAL ([\w.]+)", str(err))
-        what = f" ({found.group(1)})" if found else ""
+        # a class or function named by the file (GLOBAL), which weights_only refuses to load;
+        # any other refusal of the unpickler is bytes that are no pickle at all
+        found = re.search(r"GLOBAL ([\w.]+)", str(err))
+        if found is None:
+            raise CheckpointError(_not_a_checkpoint(path, "its bytes are not a pickle")) from None
         raise CheckpointError(
             f"not a readable hispo-pl checkpoint: {path} holds Python objects other than "
-            f"tensors and plain values{what}, which hispo-pl never writes and will not load"
+            f"tensors and plain values ({found.group(1)}), which hispo-pl never writes and will "
+            "not load"
         ) from None
     except (OSError, RuntimeError, EOFError, ValueError, KeyError, AttributeError) as err:
-        raise CheckpointError(
-            f"not a readable hispo-pl checkpoint: {path} (corrupt or truncated: {first_line(err)})"
-        ) from None
+        if isinstance(err, EOFError | KeyError):  # an empty file; bytes no pickle begins with
+            why = "the file is empty" if isinstance(err, EOFError) else "its bytes are not a pickle"
+            raise CheckpointError(_not_a_checkpoint(path, why)) from None
+        raise CheckpointError(_not_a_checkpoint(path, first_line(err))) from None
     if not isinstance(checkpoint, dict) or not isinstance(checkpoint.get("state_dict"), dict):
         raise CheckpointError(
             f"not a readable hispo-pl checkpoint: {path} (no state_dict: not a Lightning "
             "checkpoint)"
         )
     return checkpoint
+
+
+def _not_a_checkpoint(path, why: str) -> str:
+    return f"not a readable hispo-pl checkpoint: {path} (corrupt, truncated or not one: {why})"
 
 
 def check_shapes_on_meta(method, hparams: dict, checkpoint: dict, path) -> None:
