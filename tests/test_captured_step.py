@@ -177,6 +177,13 @@ def test_a_method_with_its_own_optimiser_refuses_the_captured_step():
         CSP(4, 2, optim=OptimConfig(captured=True))
 
 
+def test_the_captured_step_refuses_mixed_precision():
+    module = HBC(4, 2, optim=OptimConfig(captured=True))
+    trainer = L.Trainer(max_steps=2, precision="bf16-mixed", logger=False, accelerator="cpu")
+    with pytest.raises(ConfigError, match="precision is bf16-mixed"):
+        trainer.fit(module, DataLoader([make_batch(16)] * 2, batch_size=None))
+
+
 def test_a_non_finite_loss_stops_the_captured_fit_when_it_is_read():
     batches = [make_batch(32) for _ in range(6)]
     batches[2] = {**batches[2], "action": torch.full_like(batches[2]["action"], float("nan"))}

@@ -300,6 +300,12 @@ class GoalConditionedBC(L.LightningModule):
             return None
         steps = self._trainer.max_steps if self._trainer is not None else -1
         if self.optim_config.captured:
+            precision = str(self._trainer.precision) if self._trainer is not None else "32-true"
+            if precision not in ("32-true", "32"):
+                raise ConfigError(
+                    f"--model.init_args.optim.captured trains in float32; the Trainer's precision "
+                    f"is {precision}: leave --trainer.precision at 32, or optim.captured off"
+                )
             rates = lr_table(self.lr, self.optim_config.schedule, steps)
             self._program = TrainingProgram(self.losses, params, rates, self.device)
             return ProgramOptimizer(self._program)
