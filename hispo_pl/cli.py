@@ -42,7 +42,7 @@ import errno  # noqa: E402
 import signal  # noqa: E402
 import warnings  # noqa: E402
 
-from .errors import Interrupted, UserError  # noqa: E402
+from .errors import Interrupted, UserError, resumable  # noqa: E402
 from .stopping import terminate_as_interrupt  # noqa: E402
 
 
@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error at exit
         return 1
     except OSError as err:
-        said = machine_error(err, resumable=not argv or argv[0] in ("fit", "benchmark"))
+        said = machine_error(err, resumable=resumable(err) or _launches_runs(argv))
         if said is None:
             raise
         print(f"{prog}: error: {said}", file=sys.stderr)
@@ -126,6 +126,12 @@ _MACHINE_ERRORS = {
     errno.ENOTDIR: "a part of the path is a file where a directory was expected",
     errno.EEXIST: "a file is in the way where a directory is needed",
 }
+
+
+def _launches_runs(argv: list[str]) -> bool:
+    """Whether ``argv`` is a benchmark that launches runs, which a rerun resumes (not one
+    that only reports or checks)."""
+    return argv[:1] == ["benchmark"] and not {"--report-only", "--dry-run"} & set(argv)
 
 
 def machine_error(err: OSError, resumable: bool = False) -> str | None:

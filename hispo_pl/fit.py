@@ -195,7 +195,13 @@ class HispoCLI(LightningCLI):
             progress = task_progress(callbacks, label, self.trainer.max_steps, bar)
             self.trainer.callbacks = [*progress, StopWhenAsked()]
             start = time.perf_counter()
-            fit_interruptibly(self.trainer, model, datamodule, **kwargs)
+            try:
+                fit_interruptibly(self.trainer, model, datamodule, **kwargs)
+            except KeyboardInterrupt:
+                raise Interrupted(
+                    "interrupted: a single-task fit does not resume; its TensorBoard logs so far "
+                    "are kept (streams resume: rerun the same command)"
+                ) from None
             self.fit_seconds = time.perf_counter() - start
             return
         self.stream_results = run_stream_from_cli(self, model, datamodule)
@@ -304,7 +310,8 @@ def run_lightning_cli(args: list[str] | None = None, run: bool = True) -> HispoC
 
 def run_fit(argv: list[str]) -> int:
     """``hispo-pl fit ARGS``: check the config files it names, then fit. Ctrl-C stops a
-    single-task fit with a line that says what is kept (a stream says how to resume)."""
+    single-task fit with a line that says what is kept, a stream with how to resume, and a
+    fit that was not training (reading its configuration, printing its results) with both."""
     from .config_files import check_config_files
 
     check_config_files(argv)
@@ -314,7 +321,7 @@ def run_fit(argv: list[str]) -> int:
         if isinstance(err, Interrupted):
             raise
         raise Interrupted(
-            "interrupted: a single-task fit does not resume; its TensorBoard logs so far are "
-            "kept (streams resume: rerun the same command)"
+            "interrupted outside training: what was saved is kept; rerun the same command (a "
+            "stream resumes from its finished tasks, a single-task fit starts over)"
         ) from None
     return 0
