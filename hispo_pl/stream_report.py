@@ -168,36 +168,70 @@ def chosen_hparams(settings: dict, decisions: Sequence[Decision] = ()) -> dict:
 
 
 def custom_scalars_layout(subspaces: Sequence[str] = (), n_tasks: int = 0) -> dict:
-    """TensorBoard's Custom Scalars tab: one chart per task with its forgetting curve (the runs
-    of a folder, each in its own colour, side by side for that task), the mean over the tasks
-    trained, the anchor counts, and per subspace the pruning rule, ``L_prev / L_curr`` against
-    the line ``1 + eps`` (the new anchor is pruned at or below it)."""
+    """TensorBoard's Custom Scalars tab, ``{category: {chart title: tags}}``: one chart per
+    task with its forgetting curve (the runs of a folder, each in its own colour, side by side
+    for that task), the mean over the tasks trained, the anchor counts, and per subspace the
+    pruning rule, ``L_prev / L_curr`` against the line ``1 + eps`` (the new anchor is pruned
+    at or below it). :func:`custom_scalars_summary` draws each tag so that its every value
+    is on the chart's axis."""
     forgetting = {
-        f"{tag}: success on {tag} after each task trained (%)": [
-            "Multiline",
-            [rf"stream/success/{tag}$"],
-        ]
+        f"{tag}: success on {tag} after each task trained (%)": [f"stream/success/{tag}"]
         for tag in task_labels(n_tasks)
     }
-    stream = {
-        "mean success on the tasks trained so far (%)": [
-            "Multiline",
-            [r"stream/success/mean_seen$"],
-        ],
-        "anchors per subspace after each task": ["Multiline", [r"anchors/[^/]+/count$"]],
-    }
+    stream = {"mean success on the tasks trained so far (%)": ["stream/success/mean_seen"]}
+    if subspaces:
+        stream["anchors per subspace after each task"] = [
+            f"anchors/{name}/count" for name in subspaces
+        ]
     layout = (
         {"forgetting curves": forgetting, "stream": stream} if forgetting else {"stream": stream}
     )
     if subspaces:
         layout["pruning rule"] = {
             f"{name}: L_prev / L_curr against 1 + eps (pruned at or below the line)": [
-                "Multiline",
-                [f"search/{re.escape(name)}/({RULE_RATIO}|{RULE_LINE})$"],
+                f"search/{name}/{RULE_RATIO}",
+                f"search/{name}/{RULE_LINE}",
             ]
             for name in subspaces
         }
     return layout
+
+
+def custom_scalars_summary(layout: dict):
+    """The Custom Scalars layout as a summary, each tag a margin chart's series whose band is
+    the value itself (no band drawn). The tab scales a multiline chart's axis after leaving
+    out its extreme 5 % ("ignore outliers", on by default), which with a few points per task
+    leaves out the very values a chart is for (a chart of two points shows neither); a
+    margin series gives it each raw value twice more, so the extremes stay on the axis."""
+    from tensorboard.compat.proto.summary_pb2 import Summary, SummaryMetadata
+    from tensorboard.compat.proto.tensor_pb2 import TensorProto
+    from tensorboard.compat.proto.tensor_shape_pb2 import TensorShapeProto
+    from tensorboard.plugins.custom_scalar import layout_pb2
+
+    series = layout_pb2.MarginChartContent.Series
+    categories = [
+        layout_pb2.Category(
+            title=category,
+            chart=[
+                layout_pb2.Chart(
+                    title=title,
+                    margin=layout_pb2.MarginChartContent(
+                        series=[series(value=tag, lower=tag, upper=tag) for tag in tags]
+                    ),
+                )
+                for title, tags in charts.items()
+            ],
+        )
+        for category, charts in layout.items()
+    ]
+    tensor = TensorProto(
+        dtype="DT_STRING",
+        string_val=[layout_pb2.Layout(category=categories).SerializeToString()],
+        tensor_shape=TensorShapeProto(),
+    )
+    metadata = SummaryMetadata(plugin_data=SummaryMetadata.PluginData(plugin_name="custom_scalars"))
+    value = Summary.Value(tag="custom_scalars__config__", tensor=tensor, metadata=metadata)
+    return Summary(value=[value])
 
 
 def write_hparams(
@@ -241,7 +275,7 @@ def log_task_end(
         logger.experiment.add_figure("stream/forgetting", forgetting_figure(rows), step)
         if subspaces is not None:
             layout = custom_scalars_layout(subspaces, n_tasks=len(rows[-1]))
-            logger.experiment.add_custom_scalars(layout)
+            logger.experiment._get_file_writer().add_summary(custom_scalars_summary(layout))
 
 
 def log_stream_end(

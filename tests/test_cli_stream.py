@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 from pathlib import Path
 
@@ -154,18 +155,19 @@ def _assert_stream_report(run_dir: Path, results: dict) -> None:
 
 def _assert_custom_scalars(acc: EventAccumulator, scalars: list[str]) -> None:
     """One chart per task holds its forgetting curve, one each subspace's L_prev / L_curr and
-    the line 1 + eps, one the anchor counts; each chart's patterns match logged tags."""
-    import re
-
+    the line 1 + eps, one the anchor counts; each chart's tags are logged ones."""
     from tensorboard.plugins.custom_scalar import layout_pb2
 
     (event,) = acc.Tensors("custom_scalars__config__")
     layout = layout_pb2.Layout.FromString(event.tensor_proto.string_val[0])
-    charts = {
-        chart.title: [t for regex in chart.multiline.tag for t in scalars if re.search(regex, t)]
+    charts = {  # each tag a margin series banded by itself: every value stays on the axis
+        chart.title: [s.value for s in chart.margin.series if s.value in scalars]
         for category in layout.category
         for chart in category.chart
     }
+    for category in layout.category:
+        for chart in category.chart:
+            assert all(s.value == s.lower == s.upper for s in chart.margin.series)
     for task in ("T01", "T02"):
         (forgetting,) = (tags for title, tags in charts.items() if title.startswith(f"{task}:"))
         assert forgetting == [f"stream/success/{task}"]
@@ -216,7 +218,8 @@ def _assert_hparams(acc: EventAccumulator, results: dict) -> None:
 
 def test_a_stream_logs_its_report_through_any_logger(tiny_umaze, tmp_path, capsys):
     """The run directory and the stream report do not depend on TensorBoard: with a CSV logger
-    the stream finishes and its metrics.csv holds the stream scalars."""
+    the stream finishes, its metrics.csv holds the tasks' curves at their gradient steps and
+    stream/metrics.csv the stream scalars at the number of tasks trained."""
     logger = {
         "class_path": "lightning.pytorch.loggers.CSVLogger",
         "init_args": {"save_dir": str(tmp_path), "name": "csv", "version": "seed0"},
@@ -226,10 +229,15 @@ def test_a_stream_logs_its_report_through_any_logger(tiny_umaze, tmp_path, capsy
     out = capsys.readouterr().out
     run_dir = tmp_path / "csv" / "seed0"
     assert (run_dir / "results.json").exists() and "tensorboard --logdir" not in out
-    header = (run_dir / "metrics.csv").read_text().splitlines()[0].split(",")
+    stream = list(csv.DictReader((run_dir / "stream" / "metrics.csv").open()))
     assert {"stream/PER", "stream/MEM", "stream/success/T02", "alpha/low/T02/anchor_1"} <= set(
-        header
+        stream[0]
     )
+    assert {"anchors/low/count", "search/low/l_prev"} <= set(stream[0])
+    assert {int(row["step"]) for row in stream} == {0, 1, 2}  # tasks trained (0: at the start)
+    curves = list(csv.DictReader((run_dir / "metrics.csv").open()))
+    assert {"task_01/train/loss", "task_02/train/loss"} <= set(curves[0])
+    assert all(k == "step" or k == "epoch" or k.startswith("task_0") for k in curves[0])
 
 
 def test_a_logger_without_a_directory_gets_the_default_run_directory(

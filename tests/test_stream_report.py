@@ -12,6 +12,7 @@ from hispo_pl.stream_report import (
     anchors_markdown,
     chosen_hparams,
     custom_scalars_layout,
+    custom_scalars_summary,
     decisions_markdown,
     rule_metrics,
     stream_metrics,
@@ -176,10 +177,8 @@ def test_hparams_hold_the_settings_a_user_chose_by_name():
 
 
 def test_custom_scalars_give_each_task_its_chart_and_the_rule_as_a_ratio():
-    import re
-
     layout = custom_scalars_layout(["high", "low"], n_tasks=2)
-    charts = {title: tags for category in layout.values() for title, (_, tags) in category.items()}
+    charts = {title: tags for category in layout.values() for title, tags in category.items()}
     logged = [
         "stream/success/T01",
         "stream/success/T02",
@@ -198,7 +197,7 @@ def test_custom_scalars_give_each_task_its_chart_and_the_rule_as_a_ratio():
 
     def matched(title_start: str) -> list[str]:
         title = next(t for t in charts if t.startswith(title_start))
-        return [tag for tag in logged if any(re.search(rx, tag) for rx in charts[title])]
+        return [tag for tag in logged if tag in charts[title]]
 
     # one chart per task: the runs of a folder are the lines of a task's chart, each its colour
     assert matched("T01:") == ["stream/success/T01"]
@@ -208,6 +207,21 @@ def test_custom_scalars_give_each_task_its_chart_and_the_rule_as_a_ratio():
     assert matched("high:") == ["search/high/L_prev_over_L_curr", "search/high/1_plus_eps"]
     assert matched("low:") == ["search/low/L_prev_over_L_curr", "search/low/1_plus_eps"]
     assert "pruning rule" not in custom_scalars_layout([], n_tasks=2)  # no decisions
+
+
+def test_the_layout_bands_each_tag_by_itself_so_no_value_is_an_outlier():
+    from tensorboard.plugins.custom_scalar import layout_pb2
+
+    layout = custom_scalars_layout(["high", "low"], n_tasks=2)
+    (value,) = custom_scalars_summary(layout).value
+    assert value.tag == "custom_scalars__config__"
+    decoded = layout_pb2.Layout.FromString(value.tensor.string_val[0])
+    assert [c.title for c in decoded.category] == list(layout)
+    for category in decoded.category:
+        for chart in category.chart:
+            tags = [s.value for s in chart.margin.series]
+            assert tags == layout[category.title][chart.title]
+            assert all(s.lower == s.value == s.upper for s in chart.margin.series)
 
 
 def test_the_rule_is_logged_as_a_ratio_against_one_plus_eps():
