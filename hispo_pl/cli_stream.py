@@ -81,6 +81,15 @@ def run_stream_from_cli(cli: LightningCLI, model, datamodule) -> dict:
         cli.trainer.logger, cli.trainer.default_root_dir, config["data"]["stream"], seed
     )
 
+    # a CSV file has one step column: the stream-level values get a file of their own
+    from lightning.pytorch.loggers import CSVLogger
+
+    from .stream_csv import StreamCSVLogger
+
+    loggers = cli.trainer.loggers
+    stream_loggers = [StreamCSVLogger.like(lg) if type(lg) is CSVLogger else lg for lg in loggers]
+    logger_args = {} if stream_loggers == loggers else {"logger": stream_loggers}
+
     first_trainer = [True]
 
     def make_trainer(k: int):
@@ -102,6 +111,7 @@ def run_stream_from_cli(cli: LightningCLI, model, datamodule) -> dict:
                 callbacks=task_callbacks,
                 enable_checkpointing=False,
                 default_root_dir=run_dir,
+                **logger_args,
                 **extra,
             )
         trainer.callbacks = plain_summary(trainer.callbacks)

@@ -225,7 +225,7 @@ def test_a_stream_logs_its_report_through_any_logger(tiny_umaze, tmp_path, capsy
         "init_args": {"save_dir": str(tmp_path), "name": "csv", "version": "seed0"},
     }
     args = tiny_stream_args("hispo", tmp_path, STREAM, "--trainer.logger", json.dumps(logger))
-    assert main(args) == 0
+    assert main([*args, "--trainer.log_every_n_steps", "2"]) == 0
     out = capsys.readouterr().out
     run_dir = tmp_path / "csv" / "seed0"
     assert (run_dir / "results.json").exists() and "tensorboard --logdir" not in out
@@ -233,7 +233,7 @@ def test_a_stream_logs_its_report_through_any_logger(tiny_umaze, tmp_path, capsy
     assert {"stream/PER", "stream/MEM", "stream/success/T02", "alpha/low/T02/anchor_1"} <= set(
         stream[0]
     )
-    assert {"anchors/low/count", "search/low/l_prev"} <= set(stream[0])
+    assert {"anchors/low/count", "search/low/L_prev"} <= set(stream[0])
     assert {int(row["step"]) for row in stream} == {0, 1, 2}  # tasks trained (0: at the start)
     curves = list(csv.DictReader((run_dir / "metrics.csv").open()))
     assert {"task_01/train/loss", "task_02/train/loss"} <= set(curves[0])
