@@ -239,18 +239,23 @@ def label_offsets(
     marks = [(px - half, py - half, px + half, py + half) for px, py in points]
     for (x, y), (w, h) in zip(points, sizes, strict=True):
         choice = None
-        for ring, radius in enumerate(LABEL_RADII):
-            for ux, uy in LABEL_DIRECTIONS:
-                dx = radius + half if ux > 0 else -radius - half - w if ux < 0 else -w / 2
-                dy = radius + half if uy > 0 else -radius - half - h if uy < 0 else -h / 2
-                if ux and uy:  # a diagonal: the corner of the box on the ring
-                    dx, dy = dx - ux * 0.3 * radius, dy - uy * 0.3 * radius
-                box = (x + dx, y + dy, x + dx + w, y + dy + h)
-                free = not any(_overlap(box, o) for o in placed + marks)
-                if free and ring:  # a leader line must not cross a label already placed
-                    free = not any(_crosses((x, y), box, o) for o in placed)
-                if free and _within(box, bounds) and _nearest((x, y), box, points):
-                    choice = (dx, dy, ring > 0)
+        # first a place nearer its own point than any other; in a tight crowd, any free one
+        for attached in (True, False):
+            for ring, radius in enumerate(LABEL_RADII):
+                for ux, uy in LABEL_DIRECTIONS:
+                    dx = radius + half if ux > 0 else -radius - half - w if ux < 0 else -w / 2
+                    dy = radius + half if uy > 0 else -radius - half - h if uy < 0 else -h / 2
+                    if ux and uy:  # a diagonal: the corner of the box on the ring
+                        dx, dy = dx - ux * 0.3 * radius, dy - uy * 0.3 * radius
+                    box = (x + dx, y + dy, x + dx + w, y + dy + h)
+                    free = not any(_overlap(box, o) for o in placed + marks)
+                    if free and ring:  # a leader line must not cross a label already placed
+                        free = not any(_crosses((x, y), box, o) for o in placed)
+                    near = not attached or _nearest((x, y), box, points, marker)
+                    if free and near and _within(box, bounds):
+                        choice = (dx, dy, ring > 0 or not attached)
+                        break
+                if choice is not None:
                     break
             if choice is not None:
                 break
@@ -269,13 +274,13 @@ def _distance(point: tuple[float, float], box: tuple[float, ...]) -> float:
     return float(np.hypot(dx, dy))
 
 
-def _nearest(own: tuple[float, float], box: tuple[float, ...], points) -> bool:
-    """Whether no other point (apart from those on ``own``'s spot) is nearer to the label's
-    box than its own point: a label read as its neighbour's is worse than one a little away."""
+def _nearest(own: tuple[float, float], box: tuple[float, ...], points, spot: float) -> bool:
+    """Whether no other point (apart from those within ``spot`` of ``own``, whose markers
+    touch its own) is nearer to the label's box than its own point: a label read as its
+    neighbour's is worse than one a little away."""
     mine = _distance(own, box)
-    return all(
-        _distance(p, box) >= mine for p in points if np.hypot(p[0] - own[0], p[1] - own[1]) > 2.0
-    )
+    far = [p for p in points if np.hypot(p[0] - own[0], p[1] - own[1]) > spot]
+    return all(_distance(p, box) >= mine for p in far)
 
 
 def _crosses(own: tuple[float, float], box: tuple[float, ...], other: tuple[float, ...]) -> bool:

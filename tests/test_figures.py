@@ -47,8 +47,8 @@ def _inside(fig, artist) -> bool:
 
 
 def _attached(fig, ax) -> None:
-    """Every method label is nearer its own point than any other point (apart from points on
-    the same spot), or joined to it by a leader line; no two labels overlap."""
+    """Every method label is nearer its own point than any other point (apart from points whose
+    markers touch its own), or joined to it by a leader line; no two labels overlap."""
     renderer = _drawn(fig)
     boxes = [t.get_window_extent(renderer) for t in ax.texts]
     assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1 :])
@@ -60,7 +60,7 @@ def _attached(fig, ax) -> None:
                 max(box.x0 - p[0], 0, p[0] - box.x1), max(box.y0 - p[1], 0, p[1] - box.y1)
             )
 
-        others = [p for p in points if np.hypot(*(p - own)) > 3]
+        others = [p for p in points if np.hypot(*(p - own)) > 7 * fig.dpi / 72]  # markers apart
         assert text.arrow_patch is not None or all(gap(own) <= gap(p) for p in others), text
 
 
