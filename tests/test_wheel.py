@@ -17,7 +17,15 @@ from pathlib import Path
 import pytest
 from helpers import ROOT, TINY_STREAM
 
-SOURCES = ("pyproject.toml", "README.md", "LICENSE", "hispo_pl", "callbacks", "configs")
+SOURCES = (
+    "pyproject.toml",
+    "README.md",
+    "LICENSE",
+    "hispo_pl",
+    "callbacks",
+    "configs",
+    "notebooks",
+)
 # hispo_pl/callbacks: a symlink some working copies keep to run from the tree; the package maps
 # hispo_pl.callbacks to callbacks/ itself
 IGNORE = {"ignore": shutil.ignore_patterns("__pycache__", "callbacks"), "symlinks": True}
@@ -77,6 +85,7 @@ def test_the_wheel_carries_its_licence_links_and_configs(wheel_venv):
     shipped = {n.split("hispo_pl/configs/", 1)[1] for n in names if "hispo_pl/configs/" in n}
     assert {"streams/pointmaze-1.yaml", "methods/hispo.yaml", "grids/paper.yaml"} <= shipped
     assert "hispo_pl/callbacks/subspace.py" in names
+    assert "hispo_pl/notebooks/anchor_weights.ipynb" in names  # python -m hispo_pl.notebook
     assert not [n for n in names if n.endswith((".c", ".so"))]  # nothing to compile or load
 
 
