@@ -106,12 +106,17 @@ class HispoCLI(LightningCLI):
 
     def instantiate_classes(self) -> None:
         """LightningCLI's; a class of the configuration that cannot be made (a logger whose
-        package is not installed) is one line naming its flag and the reason.
+        package is not installed, a Trainer on an accelerator this machine lacks) is one line
+        naming it and the reason.
 
         Raises:
             ConfigError: the class and why it could not be made."""
+        from lightning.fabric.utilities.exceptions import MisconfigurationException
+
         try:
             super().instantiate_classes()
+        except MisconfigurationException as err:  # e.g. a GPU asked for where torch sees none
+            raise ConfigError(f"the Trainer cannot be made as configured: {err}") from None
         except ValueError as err:
             config = self.config.get(self.subcommand, self.config) if self.subcommand else None
             plain = config.as_dict() if hasattr(config, "as_dict") else None

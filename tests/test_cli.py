@@ -92,6 +92,14 @@ def test_evaluate_rejects_a_missing_checkpoint(tmp_path, capsys):
     assert "no checkpoint at" in capsys.readouterr().err
 
 
+@pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="this machine has a GPU")
+def test_a_gpu_trainer_without_a_gpu_is_one_line(tiny_umaze, tmp_path, capsys):
+    assert main([*_fit_args(tmp_path), "--trainer.accelerator", "gpu"]) == 2
+    err = capsys.readouterr().err
+    assert "the Trainer cannot be made as configured: No supported gpu backend" in err
+    assert "Traceback" not in err
+
+
 def test_flat_bc_config_runs(tiny_umaze, tmp_path, capsys):
     args = _fit_args(tmp_path)
     args[2] = str(ROOT / "configs/bc/pointmaze-umaze.yaml")

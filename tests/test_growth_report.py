@@ -145,3 +145,28 @@ def test_a_page_embeds_the_report_of_a_grid_before_its_runs(tmp_path, monkeypatc
     assert all(f"- {stream}: hispo (seed 0)" in rebuilt for stream in grid.streams)
     assert f"No run of the grid random-streams is committed yet (0 of {cells})" in rebuilt
     assert not folder.exists()  # embedding writes nothing
+
+
+def test_memory_after_each_task_of_a_fixed_stream(committed_runs, tmp_path):
+    """The memory-per-task table of a grid without random streams (the paper's Figure 3
+    beside): a run's measured MEM and its anchors after each task, a run made before MEM was
+    measured per task counted for its anchors only."""
+    from hispo_pl.benchmark.growth_report import memory_per_task_markdown
+
+    root = tmp_path / "results"
+    shutil.copytree(committed_runs / STREAM, root / "tiny")
+    old = root / "tiny/hispo/seed1"  # the same run as an older hispo-pl wrote it
+    shutil.copytree(root / "tiny/hispo/seed0", old)
+    results = json.loads((old / "results.json").read_text())
+    del results["mem_per_task"]
+    (old / "results.json").write_text(json.dumps(results))
+    grid = grid_from_dict({"streams": ["tiny"], "methods": ["hispo", "hilow", "scn"]}, "t")
+    text = memory_per_task_markdown(grid, Committed(root))
+    for method, seeds, measuring in (("hispo", 2, 1), ("hilow", 1, 1)):
+        ours = _results(committed_runs, method)
+        (line,) = [x for x in text.splitlines() if x.startswith(f"| tiny | {method} |")]
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        assert cells[2:4] == [str(seeds), str(measuring)]
+        assert cells[4] == " → ".join(f"{m:.2f}" for m in ours["mem_per_task"])
+        assert cells[5].split(" → ")[-1] == str(sum(ours["anchors"].values()))
+    assert "| tiny | scn |" not in text  # its memory follows from its structure

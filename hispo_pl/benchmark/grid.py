@@ -198,7 +198,7 @@ def _stream_sets(raw: dict, key: str, what: str, streams: Sequence[str], where: 
 
     Raises:
         ConfigError: not such a mapping, or a stream the grid does not list."""
-    sets = _mapping(raw, key, where, "names to lists of streams")
+    sets = _mapping(raw, key, where, f"{what} names to lists of streams")
     if not all(isinstance(v, list) and v for v in sets.values()):
         raise ConfigError(f"{where}: each {what} of `{key}` is a list of the grid's streams")
     named = {str(k): tuple(str(s) for s in v) for k, v in sets.items()}

@@ -20,8 +20,16 @@ from ..metrics import METRIC, METRICS
 from ..rundir import RunDir
 from . import paper
 from .grid import GRID_FILE, SWEEPS_DIR, Grid
+from .growth_report import (
+    findings_markdown,
+    growth_data,
+    growth_markdown,
+    has_random_streams,
+    memory_per_task_markdown,
+    write_growth_figures,
+)
 from .records import MethodRow, RunRecord, aggregate, load_records, mean_std, per_run_metrics
-from .tables import derived_footnote, derived_method, run_minutes
+from .tables import derived_footnote, derived_method, metric_cell, run_minutes
 from .transfer_report import PAC_METHOD, zero_shot_markdown
 
 BOOTSTRAP_REPS = 2000  # stratified bootstrap resamples per interval
@@ -226,18 +234,6 @@ def _stat(value: tuple[float, float] | None, digits: int = 1) -> str:
     return "" if value is None else f"{value[0]:.{digits}f} ± {value[1]:.{digits}f}"
 
 
-def _ours(row: MethodRow | None, name: str) -> str:
-    """Our metric ``name`` of a method's row as the paper prints its own: mean ± std ×100 (a
-    ratio for MEM), one seed's value alone; empty where not run."""
-    value = None if row is None else row.metrics.get(name)
-    if value is None:
-        return ""
-    metric = METRIC[name]
-    if len(row.seeds) == 1:
-        return metric.format(value[0])
-    return f"{metric.format(value[0])} ± {metric.format(value[1])}"
-
-
 def beside_paper_markdown(committed: Committed, streams: Sequence[str] | None = None) -> str:
     """The paper's per-stream tables (its Tables 7–9) and its AntMaze ablation (Table 2) with
     our committed figures in the column next to each of its own; empty where not run. With
@@ -258,7 +254,7 @@ def beside_paper_markdown(committed: Committed, streams: Sequence[str] | None = 
         for method in [*table, *sorted(set(ours) - set(table))]:
             theirs = paper.paper_row(stream, method) or {}
             mine = ours.get(method)
-            cells = [c for n in paper.METRICS for c in (_stat(theirs.get(n)), _ours(mine, n))]
+            cells = [c for n in paper.METRICS for c in (_stat(theirs.get(n)), metric_cell(mine, n))]
             seeds = "" if mine is None else len(mine.seeds)
             name = method if mine is None else derived_method(method, mine.derived)
             lines.append(f"| {name} | {seeds} | " + " | ".join(cells) + " |")
@@ -351,7 +347,7 @@ def summary_markdown(committed: Committed) -> str:
                 cells.append("–")
                 continue
             seeds = len(row.seeds)
-            text = _ours(row, "PER")
+            text = metric_cell(row, "PER")
             if "MEM" in row.metrics:
                 text += f" / {METRIC['MEM'].format(row.metrics['MEM'][0])}"
             if seeds != 3:
@@ -516,8 +512,6 @@ GROWTH_REPORTS = ("growth.md", "growth-findings.md")  # a grid with a random str
 def growth(grid: Grid, committed: Committed):
     """The growth report's data of a grid with a random stream (:mod:`.growth_report`), once
     per set of committed runs; None for other grids."""
-    from .growth_report import growth_data, has_random_streams
-
     if not has_random_streams(grid.streams):
         return None
     if "growth" not in committed.cache:
@@ -545,10 +539,10 @@ def grid_reports(
         if PAC_METHOD in grid.methods
         else "",
     }
+    if not has_random_streams(grid.streams):  # a random grid's growth report says more
+        texts["memory-per-task.md"] = memory_per_task_markdown(grid, committed)
     data = growth(grid, committed)
     if data is not None:
-        from .growth_report import findings_markdown, growth_markdown
-
         texts |= dict(
             zip(
                 GROWTH_REPORTS,
@@ -582,7 +576,5 @@ def write_grid_report(grid: Grid, root: Path, figures: bool = True) -> list[Path
             written.append(path)
     data = growth(grid, committed)
     if figures and data is not None:
-        from .growth_report import write_growth_figures
-
         written += write_growth_figures(grid, data, out)
     return written

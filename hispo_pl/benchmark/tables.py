@@ -9,7 +9,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..metrics import METRICS
+from ..metrics import METRIC, METRICS
 from ..results import CriticDecision, Decision, LossDecision, decisions_table
 from ..tasks import parse_task
 from .records import MethodRow, RunRecord, format_mean_std
@@ -241,3 +241,15 @@ def runtime_csv(records: Sequence[RunRecord]) -> str:
         steps = r.meta.get("steps_per_task")
         writer.writerow([r.method, r.seed, round(minutes, 3), "" if steps is None else steps])
     return buf.getvalue()
+
+
+def metric_cell(row: MethodRow | None, name: str) -> str:
+    """Our metric ``name`` of a method's row as the paper prints its own: mean ± std ×100 (a
+    ratio for MEM), one seed's value alone; empty where not run."""
+    value = None if row is None else row.metrics.get(name)
+    if value is None:
+        return ""
+    metric = METRIC[name]
+    if len(row.seeds) == 1:
+        return metric.format(value[0])
+    return f"{metric.format(value[0])} ± {metric.format(value[1])}"

@@ -6,13 +6,9 @@ measurement of it, so this report is what stands beside that section."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 from ..results import ZeroShotDecision
-
-if TYPE_CHECKING:
-    from .grid_report import Committed
-    from .records import MethodRow
+from .tables import metric_cell
 
 PAC_METHOD, BASE_METHOD = "hispo-pac", "hispo"
 
@@ -38,22 +34,17 @@ def zero_shot_counts(decisions: Sequence) -> tuple[dict[str, tuple[int, int]], i
     return counts, sum(all(taken) for taken in by_task.values())
 
 
-def _cell(row: MethodRow | None, name: str) -> str:
-    from .grid_report import _ours
-
-    return _ours(row, name)
-
-
-def zero_shot_markdown(committed: Committed, streams: Sequence[str]) -> str:
+def zero_shot_markdown(committed, streams: Sequence[str]) -> str:
     """The table of HiSPO-PAC's zero-shot decisions and its PER / MEM beside HiSPO's on each of
-    ``streams`` (a stream without a HiSPO-PAC run says so)."""
+    ``streams`` (a stream without a HiSPO-PAC run says so), from ``committed`` (a
+    :class:`~.grid_report.Committed`)."""
     lines = []
     for stream in streams:
         runs = [r for r in committed.records(stream) if r.method == PAC_METHOD]
         rows = committed.methods(stream)
         pac, base = rows.get(PAC_METHOD), rows.get(BASE_METHOD)
         if not runs:
-            per, mem = _cell(base, "PER"), _cell(base, "MEM")
+            per, mem = metric_cell(base, "PER"), metric_cell(base, "MEM")
             lines.append(f"| {stream} | 0 | not run yet | | | {per} | | {mem} |")
             continue
         totals: dict[str, list[int]] = {}
@@ -66,8 +57,8 @@ def zero_shot_markdown(committed: Committed, streams: Sequence[str]) -> str:
                 total[0], total[1] = total[0] + taken, total[1] + made
         taken = ", ".join(f"{name} {t} of {m}" for name, (t, m) in totals.items()) or "no test"
         lines.append(
-            f"| {stream} | {len(runs)} | {taken} | {skipped} | {_cell(pac, 'PER')} | "
-            f"{_cell(base, 'PER')} | {_cell(pac, 'MEM')} | {_cell(base, 'MEM')} |"
+            f"| {stream} | {len(runs)} | {taken} | {skipped} | {metric_cell(pac, 'PER')} | "
+            f"{metric_cell(base, 'PER')} | {metric_cell(pac, 'MEM')} | {metric_cell(base, 'MEM')} |"
         )
     head = [
         "# Zero-shot transfer: HiSPO-PAC beside HiSPO\n",
