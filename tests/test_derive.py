@@ -114,7 +114,8 @@ def test_the_grid_derives_a_keep_last_cell_whose_sibling_trains_or_left_its_chec
     )
     assert not {c.method for c in plan.todo} & {"sc1", "ft1"}
     line = gr.describe(plan, lambda c: None)[0]
-    assert "0 done, 34 to run" in line and "6 to derive from a sibling" in line
+    # 13 methods, 2 of them derived: 11 × 3 seeds, and the two λ sweeps' 4 values besides seed 0's
+    assert "0 done, 37 to run" in line and "6 to derive from a sibling" in line
     # the sibling committed: derived only where its run directory is still there (seed 0)
     done = {f"pointmaze-1/scn/seed{s}": 0.5 for s in range(3)}
     plan = gr.plan_cells(
