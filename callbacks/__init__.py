@@ -1,20 +1,8 @@
-"""Callbacks that carry out the method (shipped as ``hispo_pl.callbacks``)."""
+"""The method's callbacks, as the repository lays them out: the code is the package
+``hispo_pl.callbacks`` (``hispo_pl/callbacks/``), which this folder re-exports for a checkout
+on ``PYTHONPATH``. Configurations and imports name ``hispo_pl.callbacks``: a top-level
+``callbacks`` module would collide with other packages of that name, so the wheel ships only
+the package."""
 
-from .critic import CriticEvaluation, CriticPruning
-from .networks import TaskNetworks, WeightConsolidation
-from .rollout import RolloutEvaluation
-from .search import DirichletEvaluation
-from .subspace import AnchorExtension, SubspacePruning
-from .transfer import ZeroShotTransfer
-
-__all__ = [
-    "AnchorExtension",
-    "CriticEvaluation",
-    "CriticPruning",
-    "DirichletEvaluation",
-    "RolloutEvaluation",
-    "SubspacePruning",
-    "TaskNetworks",
-    "WeightConsolidation",
-    "ZeroShotTransfer",
-]
+from hispo_pl.callbacks import *  # noqa: F403
+from hispo_pl.callbacks import __all__  # noqa: F401

@@ -1,5 +1,4 @@
-"""The package has no import circle: every module of ``hispo_pl`` (with ``callbacks/``, shipped
-as ``hispo_pl.callbacks``) is read with ``ast``, every import counts (at module level, inside a
+"""The package has no import circle: every module of ``hispo_pl`` is read with ``ast``, every import counts (at module level, inside a
 function or under ``TYPE_CHECKING``), and no two modules may reach each other."""
 
 from __future__ import annotations
@@ -12,18 +11,13 @@ PACKAGE = "hispo_pl"
 
 
 def package_modules(root: Path = ROOT) -> dict[str, Path]:
-    """Module name -> file for ``hispo_pl`` and ``callbacks/`` (as ``hispo_pl.callbacks``);
-    a package is its ``__init__``."""
-    trees = {PACKAGE: root / PACKAGE, f"{PACKAGE}.callbacks": root / "callbacks"}
+    """Module name -> file for every module of ``hispo_pl``; a package is its ``__init__``."""
     modules: dict[str, Path] = {}
-    for prefix, folder in trees.items():
-        for path in sorted(folder.rglob("*.py")):
-            parts = path.relative_to(folder).with_suffix("").parts
-            if prefix == PACKAGE and parts[0] == "callbacks":
-                continue  # the shipped callbacks/ (a link here, in a checkout)
-            if parts[-1] == "__init__":
-                parts = parts[:-1]
-            modules[".".join((prefix, *parts))] = path
+    for path in sorted((root / PACKAGE).rglob("*.py")):
+        parts = path.relative_to(root / PACKAGE).with_suffix("").parts
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        modules[".".join((PACKAGE, *parts))] = path
     return modules
 
 
@@ -142,7 +136,7 @@ def test_the_package_has_no_import_circle():
 
 
 def test_the_graph_holds_the_package_imports():
-    """The walk sees relative, absolute, lazy and shipped-callback imports."""
+    """The walk sees relative, absolute and lazy imports, the callbacks' among them."""
     graph = import_graph()
     assert "hispo_pl.callbacks.search" in graph
     assert "hispo_pl.tasks" in graph["hispo_pl.data.datasets"]  # from ..tasks import
@@ -156,7 +150,6 @@ def test_a_circle_through_a_function_or_a_package_is_found(tmp_path):
     ``__init__`` defines goes through the ``__init__``."""
     package = tmp_path / PACKAGE
     (package / "sub").mkdir(parents=True)
-    (tmp_path / "callbacks").mkdir()
     (package / "__init__.py").write_text("")
     (package / "a.py").write_text("from .b import f\n")
     (package / "b.py").write_text("def f():\n    from . import a\n")

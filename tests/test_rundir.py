@@ -20,10 +20,7 @@ def documented_modules() -> list[str]:
     """Every module of the package (callbacks and configs included) whose docstrings show an
     example, found by walking it, so a new example is run without being listed here."""
     names = []
-    infos = list(pkgutil.walk_packages(hispo_pl.__path__, "hispo_pl."))
-    callbacks = importlib.import_module("hispo_pl.callbacks")  # shipped from callbacks/
-    infos += pkgutil.walk_packages(callbacks.__path__, "hispo_pl.callbacks.")
-    for info in infos:
+    for info in pkgutil.walk_packages(hispo_pl.__path__, "hispo_pl."):
         spec = importlib.util.find_spec(info.name)
         origin = spec.origin if spec else None
         if origin and origin.endswith(".py") and ">>> " in Path(origin).read_text():

@@ -22,13 +22,10 @@ SOURCES = (
     "README.md",
     "LICENSE",
     "hispo_pl",
-    "callbacks",
     "configs",
     "notebooks",
 )
-# hispo_pl/callbacks: a symlink some working copies keep to run from the tree; the package maps
-# hispo_pl.callbacks to callbacks/ itself
-IGNORE = {"ignore": shutil.ignore_patterns("__pycache__", "callbacks"), "symlinks": True}
+IGNORE = {"ignore": shutil.ignore_patterns("__pycache__"), "symlinks": True}
 CLEAN_ENV = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}  # no checkout on the path
 
 
