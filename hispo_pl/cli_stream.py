@@ -5,13 +5,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 from .data.datamodule import TaskDataModule
 from .errors import ConfigError, RunDirError
 from .results import StreamResults, fwt_reference
 from .run_checks import plain_config, run_fingerprint
-from .rundir import read_results_file, task_label
+from .rundir import RunDir, read_results_file, task_label
 from .tasks import Task
 
 if TYPE_CHECKING:
@@ -38,7 +38,7 @@ def scratch_diagonal(path: Path, n_tasks: int) -> list[float]:
     if not path.is_file():
         raise ConfigError(f"--scratch_results {path}: no such file (a stream's results.json)")
     try:
-        results = StreamResults.from_json(read_results_file(path))
+        results = read_results_file(path)
     except RunDirError as err:
         raise ConfigError(f"--scratch_results: {err}") from None
     reference = fwt_reference(results, n_tasks)
@@ -62,9 +62,16 @@ def task_datamodules(
     return make_datamodule
 
 
-def run_stream_from_cli(cli: LightningCLI, model, datamodule) -> dict:
-    """Build the ContinualLoop from the parsed config: per-task datamodules share the data
-    settings, per-task Trainers share the callbacks and the stream's logger."""
+class FinishedStream(NamedTuple):
+    """A stream the fit ran to its end: its results and the directory that holds its files."""
+
+    results: StreamResults
+    run_dir: RunDir
+
+
+def run_stream_from_cli(cli: LightningCLI, model, datamodule) -> FinishedStream:
+    """Build the ContinualLoop from the parsed config (per-task datamodules share the data
+    settings, per-task Trainers share the callbacks and the stream's logger) and run it."""
     from lightning.pytorch.callbacks import ModelCheckpoint, ModelSummary, ProgressBar
     from lightning.pytorch.cli import SaveConfigCallback
 
@@ -138,6 +145,4 @@ def run_stream_from_cli(cli: LightningCLI, model, datamodule) -> dict:
         config_text=yaml.safe_dump(plain, sort_keys=False),
         checkpoint_every=int(config.get("checkpoint_every") or 0),
     )
-    results = loop.run()
-    results["run_dir"] = str(run_dir)
-    return results
+    return FinishedStream(loop.run(), RunDir(run_dir))

@@ -10,35 +10,12 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from .cli_common import add_num_threads_argument, flip_note, set_num_threads
 from .cli_errors import VerbParser
 from .errors import Interrupted, UserError
 
 if TYPE_CHECKING:  # torch and Lightning are imported when a verb runs, not for its --help
     from .modules.hbc import GoalConditionedBC
-
-
-def set_num_threads(n: int) -> None:
-    """Torch intra-op threads; 0 keeps torch's default. On 2 shared cores 1 often wins."""
-    if n > 0:
-        import torch
-
-        torch.set_num_threads(n)
-
-
-NUM_THREADS_FLAGS = ("--num_threads", "--num-threads")
-"""Every verb takes the thread count as ``--num_threads`` (the configs' key), with
-``--num-threads`` as another spelling of it."""
-
-
-def add_num_threads_argument(parser: argparse.ArgumentParser) -> None:
-    """``--num_threads`` (or ``--num-threads``), 1 as in fit's configs: on shared cores one
-    thread per process often wins (docs/performance.md)."""
-    parser.add_argument(
-        *NUM_THREADS_FLAGS,
-        type=int,
-        default=1,
-        help="torch.set_num_threads (default 1, as fit's configs; 0: torch's choice)",
-    )
 
 
 def data_main(argv: list[str]) -> int:
@@ -312,8 +289,3 @@ def render_main(argv: list[str]) -> int:
         drawn += f" ({wins} reached their goal)"
     print(f"[hispo-pl] {len(tasks)} maze(s){drawn}: {out}")
     return 0
-
-
-def flip_note(rate: float) -> str:
-    """The share of episodes that ended with the agent flipped over, when there were any."""
-    return f", {100 * rate:.0f}% flipped over" if rate > 0 else ""

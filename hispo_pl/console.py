@@ -12,7 +12,6 @@ import textwrap
 import time
 from collections.abc import Mapping, Sequence
 from numbers import Number
-from pathlib import Path
 
 import lightning as L
 from lightning.pytorch.callbacks import ModelSummary, RichModelSummary, TQDMProgressBar
@@ -381,20 +380,19 @@ def stream_line(specs: Sequence[str], datasets: Sequence[dict | None] | None) ->
     return " -> ".join(name if src is None else f"{name} from {src}" for name, src in named)
 
 
-def print_stream_results(results: dict) -> None:
-    typed = StreamResults.from_json(results)
-    say(f"stream {stream_line(typed.stream, typed.datasets)}")
-    print(typed.table)
-    say(metrics_line(typed))
-    if typed.anchors:
-        say(f"anchors per subspace: {typed.anchors}")
-    run_dir = RunDir(results["run_dir"])
+def print_stream_results(results: StreamResults, run_dir: RunDir) -> None:
+    """A finished stream: its tasks, R, metrics, anchors, decisions and where its files are."""
+    say(f"stream {stream_line(results.stream, results.datasets)}")
+    print(results.table)
+    say(metrics_line(results))
+    if results.anchors:
+        say(f"anchors per subspace: {results.anchors}")
     decisions = run_dir.decisions()
     legend = decision_legend(decisions)
     for line in decision_lines(decisions):
         say(f"{line}  ({legend})")
-    say(f"wall time per task (s): {[round(t) for t in typed.wall_time_s or []]}")
+    say(f"wall time per task (s): {[round(t) for t in results.wall_time_s or []]}")
     say(f"results: {run_dir.results_file}")
-    if any(Path(results["run_dir"]).glob("events.out.tfevents.*")):
-        say(f"curves and decisions: tensorboard --logdir {results['run_dir']}")
+    if any(run_dir.path.glob("events.out.tfevents.*")):
+        say(f"curves and decisions: tensorboard --logdir {run_dir}")
         say(f"the stream at a glance, unsmoothed: {TENSORBOARD_GLANCE}")

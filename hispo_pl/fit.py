@@ -13,6 +13,7 @@ from pathlib import Path
 import torch
 from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
 
+from .cli_common import NUM_THREADS_FLAGS, flip_note, set_num_threads
 from .cli_errors import (
     class_problem_line,
     dotted_flags,
@@ -21,7 +22,6 @@ from .cli_errors import (
     without_flag,
 )
 from .cli_stream import run_stream_from_cli
-from .commands import NUM_THREADS_FLAGS, flip_note, set_num_threads
 from .console import StopWhenAsked, print_stream_results, say
 from .data.datamodule import TaskDataModule
 from .errors import ConfigError, Interrupted, UserError
@@ -213,7 +213,7 @@ class HispoCLI(LightningCLI):
 
     def after_fit(self) -> None:
         if self.datamodule.tasks:
-            print_stream_results(self.stream_results)
+            print_stream_results(*self.stream_results)
             return
         record = self.model.task_record
         if record.evaluation is None:  # no RolloutEvaluation callback

@@ -29,7 +29,7 @@ from .errors import Interrupted, ResumableWork
 from .io import atomic_save, files_in_log_dir
 from .metrics import continual_metrics, memory_ratio, module_bytes, results_row_table
 from .modules.hispo import SubspacePolicy
-from .results import StreamResults
+from .results import Progress, StreamResults
 from .resume import MissingCheckpointError, RunDirLock, TaskCheckpoint, resume_progress
 from .rundir import RunDir, task_label
 from .stream_report import log_stream_end, log_task_end
@@ -149,26 +149,19 @@ class ContinualLoop:
 
     # --- progress on disk -------------------------------------------------------------------
 
-    def _save_progress(self, progress: dict) -> None:
-        self.run_dir.write_progress(progress)
-
     def _keep_finished_decisions(self, done: int) -> None:
         """Drop ``decisions.jsonl`` records of tasks that did not finish (a kill after a task's
         decisions but before its progress was saved), so a resumed task's records appear
         once. Records carry the 0-based ``task``."""
-
-        def finished(record: dict) -> bool:
-            task = record.get("task")
-            return isinstance(task, int) and task < done
-
-        self.run_dir.keep_decisions(finished)
+        self.run_dir.keep_decisions(lambda d: isinstance(d.task, int) and d.task < done)
 
     # --- the loop ---------------------------------------------------------------------------
 
-    def run(self) -> dict:
+    def run(self) -> StreamResults:
         """Train the tasks not finished yet, holding the run directory's lock throughout. A
         stop or an error of the machine at any point leaves what a rerun resumes, and says so
-        (a stop outside a task too: while the lock is taken or the results are written)."""
+        (a stop outside a task too: while the lock is taken or the results are written).
+        Returns the stream's results, as written to ``results.json``."""
         self.run_dir.path.mkdir(parents=True, exist_ok=True)
         try:
             with ResumableWork(), RunDirLock(self.run_dir), lightning_notices_once():
@@ -181,17 +174,17 @@ class ContinualLoop:
                 "same command to resume."
             ) from None
 
-    def _run(self) -> dict:
+    def _run(self) -> StreamResults:
         self.run_dir.remove_stale_temporaries()  # of writes a kill cut short; the lock is ours
         progress = resume_progress(self.run_dir, self.specs, self.fingerprint)
-        done = len(progress["rows"])
+        done = progress.done
         last = self.run_dir.checkpoint(done - 1) if done else None
         if last is not None and not last.exists():
             raise MissingCheckpointError(
                 f"{RunDir.PROGRESS} lists {done} finished tasks but {last.name} is missing"
             )
         self._keep_finished_decisions(done)
-        self._save_progress(progress)  # the fingerprint, before anything trains
+        self.run_dir.write_progress(progress)  # the fingerprint, before anything trains
         if last is not None:
             self.module.load_checkpoint_file(last)
             print(f"[hispo-pl] resuming {self.run_dir}: tasks 1..{done} already trained")
@@ -212,7 +205,7 @@ class ContinualLoop:
         if self._loggers:
             decisions = self.run_dir.decisions()
             log_stream_end(self._loggers, results, decisions, self.fingerprint or {})
-        return results.to_json()
+        return results
 
     def _rollout_picture(self, k: int):
         """Ten of task ``k``'s scored rollouts (RolloutEvaluation's, with their paths) drawn on
@@ -225,7 +218,7 @@ class ContinualLoop:
         overlay = Overlay(list(rollouts.trajectories[:10]), rollouts.successes[:10])
         return maze_figure([self.stream[k]], [overlay])
 
-    def _train_task(self, k: int, progress: dict) -> None:
+    def _train_task(self, k: int, progress: Progress) -> None:
         """Train task ``k`` and record its checkpoint, configuration and row of R."""
         start = time.perf_counter()
         if self.seed is not None:
@@ -260,22 +253,16 @@ class ContinualLoop:
                 decided = self.run_dir.decisions()
                 subspaces = list(dict.fromkeys(d.subspace for d in decided))
                 self._layout_logged = True
-            rows = [*progress["rows"], list(row)]  # R so far, this task's row last
+            rows = [*progress.rows, list(row)]  # R so far, this task's row last
             log_task_end(self._loggers, rows, picture, subspaces, memory_now)
         atomic_save(
             self.run_dir.checkpoint(k), lambda tmp: trainer.save_checkpoint(tmp, weights_only=False)
         )
         if self.config_text is not None:
             self.run_dir.write_task_config(k, self.config_text)
-        memory = progress.setdefault("mem_per_task", [])
-        memory += [None] * (len(progress["rows"]) - len(memory))  # tasks of an older run
-        memory.append(memory_now)
-        progress["rows"].append(list(row))
         elapsed = time.perf_counter() - start
-        progress["wall_time_s"].append(elapsed)
-        progress["phase_time_s"].append(phases)
-        progress["datasets"].append(datamodule.dataset_use.as_json())
-        self._save_progress(progress)
+        progress.finish_task(row, elapsed, phases, datamodule.dataset_use.as_json(), memory_now)
+        self.run_dir.write_progress(progress)
         partial.unlink(missing_ok=True)
         decisions = self.run_dir.decisions()
         say(task_summary(k, len(self.stream), elapsed, row, decisions, phases))
@@ -288,23 +275,23 @@ class ContinualLoop:
             return None
         return memory_ratio(module_bytes(self.module), self.reference_bytes)
 
-    def _results(self, progress: dict) -> StreamResults:
+    def _results(self, progress: Progress) -> StreamResults:
         n = len(self.stream)
         R = np.full((n, n), np.nan)
-        for i, row in enumerate(progress["rows"]):
+        for i, row in enumerate(progress.rows):
             R[i, : len(row)] = row
         stored = module_bytes(self.module)
         results = StreamResults(
             stream=self.specs,
             R=[[None if math.isnan(v) else v for v in row] for row in R.tolist()],
-            wall_time_s=progress["wall_time_s"],
-            phase_time_s=progress["phase_time_s"],
+            wall_time_s=progress.wall_time_s,
+            phase_time_s=progress.phase_time_s,
             # per task: the Minari id and the episodes it read (None: a task of an older run)
-            datasets=progress["datasets"],
+            datasets=progress.datasets,
             metrics=continual_metrics(R, self.scratch_success, stored, self.reference_bytes),
             stored_bytes=stored,
             table=results_row_table(R),
-            mem_per_task=progress.get("mem_per_task"),
+            mem_per_task=progress.mem_per_task,
         )
         if isinstance(self.module, SubspacePolicy):
             names = self.module.subspace_names

@@ -19,6 +19,7 @@ import torch
 from .config import upgrade_fingerprint
 from .errors import RunDirError
 from .io import atomic_save, named_errors, open_append
+from .results import Progress
 from .run_checks import upgrade_callback_keys
 from .rundir import RunDir
 
@@ -167,7 +168,7 @@ def stored_fingerprint(stored: dict) -> dict:
     return upgrade_fingerprint(upgrade_callback_keys(stored))
 
 
-def resume_progress(run_dir: RunDir, stream: list[str], fingerprint: dict | None) -> dict:
+def resume_progress(run_dir: RunDir, stream: list[str], fingerprint: dict | None) -> Progress:
     """The progress a run of ``stream`` goes on from in ``run_dir``: the stored one, or a fresh
     one when there is none or the stored run never trained a step.
 
@@ -175,27 +176,19 @@ def resume_progress(run_dir: RunDir, stream: list[str], fingerprint: dict | None
         RunDirError: the directory holds another stream, or a started run whose settings
             differ from ``fingerprint`` (the differing keys named).
     """
-    fresh = {
-        "stream": stream,
-        "rows": [],
-        "wall_time_s": [],
-        "phase_time_s": [],
-        "datasets": [],
-    }
-    if fingerprint is not None:
-        fresh["fingerprint"] = fingerprint
+    fresh = Progress(stream=stream, fingerprint=fingerprint)
     progress = run_dir.read_progress()  # a malformed file: RunDirError, named
     if progress is None:
         return fresh
-    if progress["stream"] != stream:
+    if progress.stream != stream:
         raise RunDirError(
-            f"{run_dir} holds a run of stream {progress['stream']}, not {stream}; "
+            f"{run_dir} holds a run of stream {progress.stream}, not {stream}; "
             "choose another run directory (e.g. --trainer.logger.init_args.version)"
         )
-    stored = progress.get("fingerprint")
+    stored = progress.fingerprint
     stored = stored_fingerprint(stored) if stored is not None else None
     differing = differing_keys(stored or {}, fingerprint or {})
-    started = progress["rows"] or run_dir.partial_checkpoint(0).exists()
+    started = progress.rows or run_dir.partial_checkpoint(0).exists()
     if differing and not started:  # refused or stopped before its first step: no mixing
         return fresh
     if fingerprint is not None and stored is not None and differing:
@@ -207,9 +200,5 @@ def resume_progress(run_dir: RunDir, stream: list[str], fingerprint: dict | None
             "--trainer.logger.init_args.version)"
         )
     if fingerprint is not None and stored is None:
-        progress["fingerprint"] = fingerprint  # a run from before fingerprints
-    # a run from before phase times: its finished tasks have none
-    progress.setdefault("phase_time_s", [None] * len(progress["rows"]))
-    # ... nor the datasets its finished tasks read
-    progress.setdefault("datasets", [None] * len(progress["rows"]))
+        progress.fingerprint = fingerprint  # a run from before fingerprints
     return progress

@@ -34,7 +34,7 @@ import numpy as np
 
 from .errors import RunDirError
 from .io import atomic_save, atomic_write_text, named_errors, open_append, real_folder
-from .results import Decision, StreamResults, TaskResult
+from .results import Decision, Progress, StreamResults
 
 
 def task_label(index: int) -> int:
@@ -101,7 +101,7 @@ def results_problem(results: dict) -> str | None:
     return None
 
 
-def read_results_file(path: Path) -> dict:
+def read_results_file(path: Path) -> StreamResults:
     """A stream's ``results.json`` at ``path``, checked with :func:`results_problem`.
 
     Raises:
@@ -110,7 +110,7 @@ def read_results_file(path: Path) -> dict:
     problem = results_problem(results)
     if problem is not None:
         raise RunDirError(f"{path} cannot be tabulated: {problem}")
-    return results
+    return StreamResults.from_json(results)
 
 
 class RunDir:
@@ -217,7 +217,7 @@ class RunDir:
 
     # --- formats ----------------------------------------------------------------------------
 
-    def read_progress(self) -> dict | None:
+    def read_progress(self) -> Progress | None:
         """``progress.json``, or None before the first task started.
 
         Raises:
@@ -228,21 +228,22 @@ class RunDir:
         holds = "a stream's progress; move the run directory away to start over"
         progress = read_json_object(self.progress_file, holds)
         _require_lists(self.progress_file, progress, ("stream", "rows"), holds)
-        return progress
+        return Progress.from_json(progress)
 
     def stream_task(self, task: int) -> str | None:
         """The spec of task ``task`` (0-based) of the stream this directory runs, or ``None``
         (not a stream run, or no such task)."""
-        stream = (self.read_progress() or {}).get("stream") or []
+        progress = self.read_progress()
+        stream = progress.stream if progress is not None else []
         return stream[task] if 0 <= task < len(stream) else None
 
-    def write_progress(self, progress: dict) -> None:
-        atomic_write_text(self.progress_file, json.dumps(progress, indent=1))
+    def write_progress(self, progress: Progress) -> None:
+        atomic_write_text(self.progress_file, json.dumps(progress.to_json(), indent=1))
 
     def has_results(self) -> bool:
         return self.results_file.exists()
 
-    def read_results(self) -> dict:
+    def stream_results(self) -> StreamResults:
         """``results.json``, checked to be tabulable (:func:`results_problem`).
 
         Raises:
@@ -250,50 +251,31 @@ class RunDir:
         """
         return read_results_file(self.results_file)
 
-    def stream_results(self) -> StreamResults:
-        """``results.json`` as :class:`~hispo_pl.results.StreamResults` (checked as
-        :meth:`read_results`)."""
-        return StreamResults.from_json(self.read_results())
-
-    def write_results(self, results: StreamResults | dict) -> None:
-        if isinstance(results, StreamResults):
-            results = results.to_json()
-        atomic_write_text(self.results_file, json.dumps(results, indent=1))
+    def write_results(self, results: StreamResults) -> None:
+        atomic_write_text(self.results_file, json.dumps(results.to_json(), indent=1))
 
     def write_task_config(self, task: int, text: str) -> None:
         atomic_write_text(self.task_config(task), text)
 
-    def read_decisions(self) -> list[dict]:
-        """Every record of ``decisions.jsonl`` in order (none when absent); a line cut by a
-        kill, or one that is not a JSON object, is skipped."""
+    def decisions(self) -> list[Decision]:
+        """Every record of ``decisions.jsonl`` as its kind of
+        :class:`~hispo_pl.results.Decision`, in order (none when absent); a line that is no
+        decision record (cut by a kill, or of no known kind) is skipped."""
         if not self.decisions_file.exists():
             return []
         lines = self.decisions_file.read_text().splitlines()
-        return [r for r in map(_decision, lines) if r is not None]
+        return [d for d in map(_decision, lines) if d is not None]
 
-    def decisions(self) -> list[Decision]:
-        """Every record of ``decisions.jsonl`` as its kind of
-        :class:`~hispo_pl.results.Decision`, in order; a line that is no decision record
-        (cut by a kill, or of no known kind) is skipped, as :meth:`read_decisions` does."""
-        found = []
-        for record in self.read_decisions():
-            try:
-                found.append(Decision.from_json(record))
-            except ValueError:
-                continue
-        return found
-
-    def append_decisions(self, records: Iterable[Decision | dict]) -> None:
+    def append_decisions(self, records: Iterable[Decision]) -> None:
         self.path.mkdir(parents=True, exist_ok=True)
         with named_errors(self.decisions_file), open_append(self.decisions_file) as f:
             for record in records:
-                if isinstance(record, Decision):
-                    record = record.to_json()
-                f.write(json.dumps(record) + "\n")
+                f.write(json.dumps(record.to_json()) + "\n")
 
-    def keep_decisions(self, keep: Callable[[dict], bool]) -> None:
-        """Rewrite ``decisions.jsonl`` with the records ``keep`` accepts (unreadable lines
-        dropped); the file is left alone when nothing changes."""
+    def keep_decisions(self, keep: Callable[[Decision], bool]) -> None:
+        """Rewrite ``decisions.jsonl`` with the records ``keep`` accepts, each line as it was
+        (lines that are no decision record dropped); the file is left alone when nothing
+        changes."""
         if not self.decisions_file.exists():
             return
         lines = self.decisions_file.read_text().splitlines(keepends=True)
@@ -326,15 +308,12 @@ class RunDir:
         return out
 
     def read_result(self) -> dict:
+        """A single-task fit's ``result.json``: its final evaluation (``success``,
+        ``episode_length``, ``flip_rate``, ``step``), the method, task, dataset and seconds,
+        and its learning ``curve``."""
         return read_json_object(self.result_file, "a single-task fit's evaluation")
 
-    def task_result(self) -> TaskResult:
-        """``result.json`` as :class:`~hispo_pl.results.TaskResult`."""
-        return TaskResult.from_json(self.read_result())
-
-    def write_result(self, result: TaskResult | dict) -> None:
-        if isinstance(result, TaskResult):
-            result = result.to_json()
+    def write_result(self, result: dict) -> None:
         atomic_write_text(self.result_file, json.dumps(result, indent=2) + "\n")
 
     def read_run_record(self) -> dict:
@@ -347,10 +326,11 @@ class RunDir:
         atomic_write_text(self.run_record_file, json.dumps(record, indent=1))
 
 
-def _decision(line: str) -> dict | None:
-    """One ``decisions.jsonl`` record, or None for a line that is not a JSON object."""
+def _decision(line: str) -> Decision | None:
+    """One ``decisions.jsonl`` line as its kind of decision, or None for a line that is no
+    decision record (not a JSON object, or of no known kind)."""
     try:
         record = json.loads(line)
+        return Decision.from_json(record) if isinstance(record, dict) else None
     except ValueError:
         return None
-    return record if isinstance(record, dict) else None

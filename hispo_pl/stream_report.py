@@ -26,14 +26,14 @@ from .figures import (
     task_tag,
 )
 from .metrics import METRICS
-from .results import DECISION_KINDS, Decision, LossDecision, StreamResults, decisions_table
-
-# HiSPO's rule as TensorBoard draws it: the new anchor is pruned iff L_prev / L_curr is at or
-# below 1 + eps. A ratio and its line stay near 1 whatever the losses' scale, where the losses
-# themselves (0.03 for one subspace, 1.9 for the other) would crowd a chart's axis. '+' and '/'
-# cannot be written in a tag's last part.
-RULE_RATIO = "L_prev_over_L_curr"
-RULE_LINE = "1_plus_eps"
+from .results import (
+    DECISION_KINDS,
+    RULE_LINE,
+    RULE_RATIO,
+    Decision,
+    StreamResults,
+    decisions_table,
+)
 
 
 def task_row_metrics(task_index: int, row: Sequence[float]) -> dict[str, float]:
@@ -46,17 +46,6 @@ def task_row_metrics(task_index: int, row: Sequence[float]) -> dict[str, float]:
     }
     seen = row[: task_index + 1]
     metrics["stream/success/mean_seen"] = 100 * sum(seen) / len(seen)
-    return metrics
-
-
-def rule_metrics(decisions: Sequence[Decision]) -> dict[str, float]:
-    """``search/<subspace>/L_prev_over_L_curr`` and ``search/<subspace>/1_plus_eps`` of each
-    loss-rule decision that compared two losses (tasks after the first)."""
-    metrics = {}
-    for d in decisions:
-        if isinstance(d, LossDecision) and d.l_prev is not None and d.l_curr and d.eps is not None:
-            metrics[f"search/{d.subspace}/{RULE_RATIO}"] = d.l_prev / d.l_curr
-            metrics[f"search/{d.subspace}/{RULE_LINE}"] = 1.0 + d.eps
     return metrics
 
 

@@ -4,7 +4,6 @@ stream evaluation row."""
 
 from __future__ import annotations
 
-import json
 from types import SimpleNamespace
 
 import lightning as L
@@ -21,11 +20,12 @@ from hispo_pl.callbacks import (
     RolloutEvaluation,
     SubspacePruning,
 )
-from hispo_pl.callbacks.search import SearchResult
 from hispo_pl.config import BackboneConfig
 from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.modules.hbc import HBC
 from hispo_pl.modules.hispo import SUBSPACES, HiSPO
+from hispo_pl.results import LossDecision, SearchResult
+from hispo_pl.rundir import RunDir
 from hispo_pl.tasks import parse_task
 
 STREAM = ["pointmaze-umaze-N[3]", "pointmaze-umaze-IA[3]", "pointmaze-umaze-PO[3]"]
@@ -70,8 +70,8 @@ def _fit(module, task_index: int, root, callbacks, stream=STREAM) -> L.Trainer:
     return trainer
 
 
-def _decisions(root) -> list[dict]:
-    return [json.loads(line) for line in (root / "decisions.jsonl").read_text().splitlines()]
+def _decisions(root) -> list[LossDecision]:
+    return RunDir(root).decisions()
 
 
 def _fresh_module(seed: int = 0) -> HiSPO:
@@ -105,13 +105,13 @@ def test_first_task_stores_the_single_anchor(first_task):
         assert module.task_alphas(name).tolist() == [[1.0]]
     assert not any(p.requires_grad for p in module.parameters())  # frozen after the task
     decisions = _decisions(root)
-    assert [(d["task"], d["subspace"], d["decision"]) for d in decisions] == [
+    assert [(d.task, d.subspace, d.decision) for d in decisions] == [
         (0, "high", "first"),
         (0, "low", "first"),
     ]
     for d in decisions:
-        assert d["anchors"] == 1 and d["l_prev"] is None and d["alpha_curr"] == [1.0]
-        assert d["l_curr"] >= 0
+        assert d.anchors == 1 and d.l_prev is None and d.alpha_curr == [1.0]
+        assert d.l_curr >= 0
     assert not (root / "search").exists()  # one anchor: nothing to search
 
 
@@ -151,19 +151,19 @@ def test_extension_happens_before_the_optimiser_and_a_huge_eps_prunes(first_task
         assert module.n_anchors(name) == 1
         assert module.task_alphas(name).tolist() == [[1.0], [1.0]]
     decisions = _decisions(tmp_path)
-    assert [(d["task"], d["decision"], d["anchors"]) for d in decisions] == [
+    assert [(d.task, d.decision, d.anchors) for d in decisions] == [
         (1, "prune", 1),
         (1, "prune", 1),
     ]
     for d in decisions:
-        assert d["alpha_prev"] == [1.0, 0.0] and len(d["alpha_curr"]) == 2
-        assert d["eps"] == 1e9
+        assert d.alpha_prev == [1.0, 0.0] and len(d.alpha_curr) == 2
+        assert d.eps == 1e9
     for name in SUBSPACES:  # two anchors: the previous subspace is the single point [1, 0]
         with np.load(tmp_path / "search" / f"task_02_{name}.npz") as f:
             assert f["alphas"].tolist() == [[1.0, 0.0]]
             assert f["losses"].shape == (1,) and f["losses"][0] >= 0
             assert float(f["l_curr"]) == pytest.approx(
-                next(d["l_curr"] for d in decisions if d["subspace"] == name)
+                next(d.l_curr for d in decisions if d.subspace == name)
             )
 
 
@@ -239,13 +239,13 @@ def test_kept_anchors_grow_the_search_to_the_previous_simplex(first_task, tmp_pa
         np.testing.assert_allclose(alphas.sum(1), 1.0, rtol=1e-6)
         assert np.all(losses >= 0) and np.all(np.isfinite(losses))
     decisions = _decisions(tmp_path)
-    assert [d["decision"] for d in decisions] == ["keep"] * 4
-    assert [d["anchors"] for d in decisions] == [2, 2, 3, 3]
+    assert [d.decision for d in decisions] == ["keep"] * 4
+    assert [d.anchors for d in decisions] == [2, 2, 3, 3]
     for d in decisions[2:]:  # the best candidate is the one reported
-        with np.load(tmp_path / "search" / f"task_03_{d['subspace']}.npz") as f:
+        with np.load(tmp_path / "search" / f"task_03_{d.subspace}.npz") as f:
             best = int(np.argmin(f["losses"]))
-            assert d["l_prev"] == pytest.approx(float(f["losses"][best]))
-            np.testing.assert_allclose(d["alpha_prev"], f["alphas"][best])
+            assert d.l_prev == pytest.approx(float(f["losses"][best]))
+            np.testing.assert_allclose(d.alpha_prev, f["alphas"][best])
 
 
 # --- the decision itself ------------------------------------------------------------------------
@@ -264,7 +264,8 @@ def test_decide_keeps_when_the_previous_subspace_is_worse():
     m = _two_anchor_module()
     res = SearchResult(l_curr=1.0, alpha_curr=[0.3, 0.7], l_prev=2.0, alpha_prev=[1.0, 0.0])
     d = SubspacePruning()._decide(m, "high", res, eps=0.0)
-    assert d["decision"] == "keep" and d["anchors"] == 2 and d["task"] == 1
+    assert d.decision == "keep" and d.anchors == 2 and d.task == 1
+    assert isinstance(d, LossDecision) and (d.l_prev, d.alpha_curr) == (2.0, [0.3, 0.7])
     assert m.n_anchors("high") == 2
     torch.testing.assert_close(m.task_alphas("high"), torch.tensor([[1.0, 0.0], [0.3, 0.7]]))
 
@@ -291,9 +292,9 @@ def test_decide_prunes_at_the_boundary_and_stores_the_previous_point():
     m = _two_anchor_module()
     res = SearchResult(l_curr=1.0, alpha_curr=[0.3, 0.7], l_prev=1.5, alpha_prev=[1.0, 0.0])
     pruning = SubspacePruning()
-    assert pruning._decide(m, "high", res, eps=0.1)["decision"] == "keep"  # 1.5 > 1.1
+    assert pruning._decide(m, "high", res, eps=0.1).decision == "keep"  # 1.5 > 1.1
     d = pruning._decide(m, "low", res, eps=0.5)  # 1.5 <= 1.5: prune
-    assert d["decision"] == "prune" and d["anchors"] == 1 and d["eps"] == 0.5
+    assert d.decision == "prune" and d.anchors == 1 and d.eps == 0.5
     assert m.n_anchors("low") == 1
     assert m.task_alphas("low").tolist() == [[1.0], [1.0]]
 
@@ -321,7 +322,9 @@ def test_rollout_before_pruning_is_rejected(tiny_umaze, tmp_path):
 def test_subspace_callbacks_reject_a_plain_hbc(tiny_umaze, tmp_path, callback):
     cbs = [callback()] if callback is not SubspacePruning else [DirichletEvaluation(), callback()]
     hbc = HBC(**SIZES)
-    _fit_expecting(hbc, cbs, tmp_path, TypeError, "SubspacePolicy")
+    _fit_expecting(
+        hbc, cbs, tmp_path, TypeError, r"Subspaces protocol, e.g. hispo_pl.modules.HiSPO"
+    )
 
 
 class RecordLogger(Logger):
@@ -373,7 +376,7 @@ def test_periodic_search_rejects_a_negative_period():
 
 def test_refine_current_takes_a_better_point_of_the_grown_subspace():
     """The trained weights are replaced only by a point with a lower loss on the same batches."""
-    from hispo_pl.callbacks.search import SearchResult, _refine
+    from hispo_pl.callbacks.search import _refine
     from hispo_pl.decisions import extended_subspace_candidates
     from hispo_pl.search import race_candidates
 

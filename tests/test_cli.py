@@ -313,6 +313,7 @@ def test_a_knob_the_method_lacks_is_refused(capsys):
 
 def test_acting_on_another_task_than_the_policys_own_is_named(tmp_path):
     from hispo_pl.commands import other_task_note
+    from hispo_pl.results import Progress
     from hispo_pl.rundir import RunDir
     from hispo_pl.tasks import parse_task
 
@@ -320,7 +321,7 @@ def test_acting_on_another_task_than_the_policys_own_is_named(tmp_path):
     umaze, umaze_pa = parse_task("pointmaze-umaze[5]"), parse_task("pointmaze-umaze-PA")
     assert other_task_note(ckpt, 1, [umaze]) is None  # no stream run: nothing to compare with
     RunDir(tmp_path).write_progress(
-        {"stream": ["pointmaze-umaze-N[500]", "pointmaze-umaze-PA[500]"], "rows": []}
+        Progress(stream=["pointmaze-umaze-N[500]", "pointmaze-umaze-PA[500]"])
     )
     assert other_task_note(ckpt, 0, [umaze]) is None  # the same maze and variant, other episodes
     assert other_task_note(ckpt, 1, [umaze_pa]) is None

@@ -3,7 +3,6 @@ are known, the sampler's transitions, the extend rule, the module, and a stream 
 
 from __future__ import annotations
 
-import json
 import math
 
 import pytest
@@ -11,7 +10,6 @@ import torch
 from helpers import fit_tiny_stream
 
 from hispo_pl.callbacks import CriticEvaluation, CriticPruning
-from hispo_pl.callbacks.critic import CriticSearchResult
 from hispo_pl.callbacks.subspace import check_task_end_order
 from hispo_pl.config import BackboneConfig
 from hispo_pl.decisions import critic_extends
@@ -21,6 +19,8 @@ from hispo_pl.modules import CSP, CSPO, CriticScoredSubspace
 from hispo_pl.modules.hbc import GoalConditionedBC
 from hispo_pl.nn.critic import CriticConfig, SubspaceCritic
 from hispo_pl.nn.hierarchy import high_input, low_input
+from hispo_pl.results import CriticDecision, CriticSearchResult
+from hispo_pl.rundir import RunDir
 
 # --- IQL's losses --------------------------------------------------------------------------------
 
@@ -232,11 +232,11 @@ def test_critic_pruning_applies_the_rule(w_curr, decision, anchors, alpha):
         alpha_prev=[1.0, 0.0],
         l_curr=0.5,
         l_prev=0.6,
-        diagnostic={"action_dependence": 0.01},
+        action_dependence=0.01,
     )
     d = CriticPruning(eps=0.1)._decide(m, "policy", res)
-    assert (d["decision"], d["anchors"], d["rule"], d["eps"]) == (decision, anchors, "critic", 0.1)
-    assert (d["w_curr"], d["w_prev"], d["action_dependence"]) == (w_curr, 1.0, 0.01)
+    assert (d.decision, d.anchors, d.rule, d.eps) == (decision, anchors, "critic", 0.1)
+    assert (d.w_curr, d.w_prev, d.action_dependence) == (w_curr, 1.0, 0.01)
     assert m.n_anchors("policy") == anchors
     assert m.task_alphas("policy")[1].tolist() == pytest.approx(alpha)
 
@@ -256,18 +256,19 @@ def test_csp_end_to_end_through_the_cli(tiny_umaze, tmp_path):
     results, run_dir = fit_tiny_stream("csp", tmp_path)
     assert len(results["R"]) == 2 and results["BWT"] == 0.0
     assert results["anchors"]["policy"] in (1, 2) and results["MEM"] > 0
-    records = [json.loads(line) for line in (run_dir / "decisions.jsonl").read_text().splitlines()]
-    assert [(d["task"], d["subspace"], d["rule"]) for d in records] == [
+    records = RunDir(run_dir).decisions()
+    assert all(isinstance(d, CriticDecision) for d in records)
+    assert [(d.task, d.subspace, d.rule) for d in records] == [
         (0, "policy", "critic"),
         (1, "policy", "critic"),
     ]
-    assert records[0]["decision"] == "first" and records[0]["w_prev"] is None
-    assert records[1]["decision"] in ("keep", "prune")
+    assert records[0].decision == "first" and records[0].w_prev is None
+    assert records[1].decision in ("keep", "prune")
     for d in records:
-        assert math.isfinite(d["w_curr"]) and math.isfinite(d["l_curr"])
+        assert math.isfinite(d.w_curr) and math.isfinite(d.l_curr)
         for key in ("q_action_std", "q_state_std", "action_dependence", "q_policy"):
-            assert math.isfinite(d[key]), key
-    assert math.isfinite(records[1]["w_prev"]) and len(records[1]["alpha_prev"]) == 2
+            assert math.isfinite(getattr(d, key)), key
+    assert math.isfinite(records[1].w_prev) and len(records[1].alpha_prev) == 2
 
     module = GoalConditionedBC.from_checkpoint_file(str(run_dir / "task_02.ckpt"))
     assert type(module) is CSP and module.n_anchors("policy") == results["anchors"]["policy"]

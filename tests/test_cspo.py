@@ -15,7 +15,6 @@ from torch.utils.data import DataLoader
 
 import hispo_pl.modules.hispo as hispo_mod
 from hispo_pl.callbacks import AnchorExtension, SubspacePruning
-from hispo_pl.callbacks.search import SearchResult
 from hispo_pl.cli import main
 from hispo_pl.config import BackboneConfig
 from hispo_pl.metrics import module_bytes
@@ -24,6 +23,8 @@ from hispo_pl.modules.hbc import HBC, GoalConditionedBC
 from hispo_pl.modules.hispo import HiSPO, SubspacePolicy, training_alphas
 from hispo_pl.nn.hierarchy import high_input, low_input
 from hispo_pl.nn.mlp import gaussian_nll
+from hispo_pl.results import SearchResult
+from hispo_pl.rundir import RunDir
 from hispo_pl.tasks import FAMILIES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -135,7 +136,7 @@ def test_the_callbacks_grow_and_prune_both_levels_with_one_decision():
     res = SearchResult(l_curr=1.0, alpha_curr=[0.3, 0.7], l_prev=1.05, alpha_prev=[1.0, 0.0])
     pruning = SubspacePruning()  # no eps for "policy": the family's smallest, 0.1
     d = pruning._decide(m, "policy", res, pruning.tolerance("policy", FAMILIES["pointmaze"]))
-    assert (d["subspace"], d["decision"], d["eps"], d["anchors"]) == ("policy", "prune", 0.1, 1)
+    assert (d.subspace, d.decision, d.eps, d.anchors) == ("policy", "prune", 0.1, 1)
     assert [m.policies[level].net.n_anchors for level in LEVELS] == [1, 1]
     assert m.task_alphas("policy").tolist() == [[1.0], [1.0]]
 
@@ -149,7 +150,7 @@ def test_pruning_takes_the_tolerance_of_the_policy_subspace_from_eps():
         m.task_index = 1
         pruning = SubspacePruning(eps_high=1.0, eps_low=1.0, eps=eps)
         d = pruning._decide(m, "policy", res, pruning.tolerance("policy", FAMILIES["pointmaze"]))
-        assert (d["decision"], d["eps"], m.n_anchors("policy")) == (
+        assert (d.decision, d.eps, m.n_anchors("policy")) == (
             decision,
             eps["policy"],
             anchors,
@@ -313,13 +314,11 @@ def test_a_stream_end_to_end_through_the_cli(method, tiny_umaze, tmp_path, capsy
     assert f"anchors per subspace: {results['anchors']}" in out
     assert results["MEM"] > 0
 
-    decisions = [
-        json.loads(line) for line in (run_dir / "decisions.jsonl").read_text().splitlines()
-    ]
-    assert [(d["task"], d["subspace"]) for d in decisions] == [
+    decisions = RunDir(run_dir).decisions()
+    assert [(d.task, d.subspace) for d in decisions] == [
         (t, s) for t in (0, 1) for s in SUBSPACES_OF[method]
     ]
-    assert [d["decision"] for d in decisions[: len(SUBSPACES_OF[method])]] == ["first"] * len(
+    assert [d.decision for d in decisions[: len(SUBSPACES_OF[method])]] == ["first"] * len(
         SUBSPACES_OF[method]
     )
     module = GoalConditionedBC.from_checkpoint_file(str(run_dir / "task_02.ckpt"))

@@ -1,5 +1,6 @@
-"""The package has no import circle: every module of ``hispo_pl`` is read with ``ast``, every import counts (at module level, inside a
-function or under ``TYPE_CHECKING``), and no two modules may reach each other."""
+"""The package has no import circle: every module of ``hispo_pl`` is read with ``ast``, every
+import counts (at module level, inside a function or under ``TYPE_CHECKING``), and no two
+modules may reach each other."""
 
 from __future__ import annotations
 

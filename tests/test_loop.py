@@ -23,6 +23,7 @@ from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.loop import ContinualLoop, task_phases
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.hispo import SUBSPACES, HiSPO
+from hispo_pl.results import StreamResults
 from hispo_pl.rundir import RunDir
 from hispo_pl.tasks import Task
 
@@ -73,7 +74,8 @@ def uninterrupted(tiny_umaze, tmp_path_factory):
     loop = _loop(run_dir)
     results = loop.run()
     assert loop.started == [0, 1, 2]
-    return {"dir": run_dir, "results": results, "module": loop.module}
+    assert isinstance(results, StreamResults) and results == RunDir(run_dir).stream_results()
+    return {"dir": run_dir, "results": results.to_json(), "module": loop.module}
 
 
 def test_results_and_checkpoints_are_written(uninterrupted):
@@ -131,7 +133,7 @@ def test_R_is_full_and_HiSPO_does_not_forget(uninterrupted):
 
 def test_rerun_of_a_finished_run_trains_nothing(uninterrupted, capsys):
     loop = _loop(uninterrupted["dir"])
-    results = loop.run()
+    results = loop.run().to_json()
     assert loop.started == []
     assert "tasks 1..3 already trained" in capsys.readouterr().out
     for key in COMPARED + ("wall_time_s",):
@@ -152,7 +154,7 @@ def test_resume_after_an_interruption_reproduces_the_uninterrupted_run(uninterru
     assert len(json.loads((tmp_path / RunDir.PROGRESS).read_text())["rows"]) == 2
 
     resumed = _loop(tmp_path)  # a fresh process: new module, same seed setup
-    results = resumed.run()
+    results = resumed.run().to_json()
     assert resumed.started == [2]
     expected = uninterrupted["results"]
     for key in COMPARED:

@@ -857,19 +857,20 @@ def test_a_manifest_replaces_its_link_and_escapes_what_run_json_says(tmp_path):
 
 def test_run_files_appended_or_locked_replace_a_link(tmp_path):
     from hispo_pl.benchmark.launch import execute_run
+    from hispo_pl.results import LossDecision
     from hispo_pl.resume import RunDirLock
     from hispo_pl.rundir import RunDir
 
     run = RunDir(tmp_path / "run")
     names = ["decisions.jsonl", "run.lock", "fit.log", "search/task_01_low.npz"]
     victims = [_link_to_victim(run.path / n, tmp_path / f"victim{i}") for i, n in enumerate(names)]
-    run.append_decisions([{"task": 0}])
+    run.append_decisions([LossDecision(task=0, subspace="low", decision="first")])
     with RunDirLock(run):
         pass
     execute_run(["-c", "print('hello')"], str(run.fit_log), str(run.results_file))
     run.write_search(0, "low", losses=np.zeros(2))
     assert all(v.read_text() == "victim\n" for v in victims)
-    assert "hello" in run.fit_log.read_text() and run.read_decisions() == [{"task": 0}]
+    assert "hello" in run.fit_log.read_text() and [d.task for d in run.decisions()] == [0]
     assert not any((run.path / n).is_symlink() for n in names)
     assert run.read_searches()[(0, "low")]["losses"].tolist() == [0.0, 0.0]
 

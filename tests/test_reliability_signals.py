@@ -145,7 +145,7 @@ def _resumable_state(run_dir) -> int:
     run = RunDir(run_dir)
     assert not list(run.path.glob(".*tmp")), "a save left its scratch file"
     progress = run.read_progress() if run.path.is_dir() else None
-    done = len(progress["rows"]) if progress else 0
+    done = progress.done if progress is not None else 0
     for k in range(done):
         read_checkpoint(run.checkpoint(k))
     for partial in run.path.glob("*.partial.ckpt"):

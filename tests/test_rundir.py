@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import hispo_pl
+from hispo_pl.results import LossDecision, Progress, StreamResults
 from hispo_pl.rundir import RunDir, task_label
 
 
@@ -58,13 +59,14 @@ def test_names_count_tasks_from_one(tmp_path):
 
 def test_decisions_skip_cut_lines_and_keep_only_what_is_asked(tmp_path):
     run = RunDir(tmp_path)
-    assert run.read_decisions() == []
-    run.append_decisions([{"task": 0, "subspace": "high"}, {"task": 1, "subspace": "high"}])
+    assert run.decisions() == []
+    first, second = (LossDecision(task=t, subspace="high", decision="first") for t in (0, 1))
+    run.append_decisions([first, second])
     with open(run.decisions_file, "a") as f:
         f.write('{"task": 2, "subs')  # a kill mid-line
-    assert [d["task"] for d in run.read_decisions()] == [0, 1]
-    run.keep_decisions(lambda d: d["task"] < 1)
-    assert run.decisions_file.read_text() == json.dumps({"task": 0, "subspace": "high"}) + "\n"
+    assert run.decisions() == [first, second]
+    run.keep_decisions(lambda d: d.task < 1)
+    assert run.decisions_file.read_text() == json.dumps(first.to_json()) + "\n"
 
 
 def test_search_files_come_back_keyed_by_the_zero_based_task(tmp_path):
@@ -79,12 +81,34 @@ def test_progress_results_and_records_round_trip(tmp_path):
     run = RunDir(tmp_path / "new")
     assert run.read_progress() is None and run.read_run_record() == {}
     run.path.mkdir()
-    run.write_progress({"stream": ["a"], "rows": []})
-    run.write_results({"stream": ["a"], "R": [[1.0]]})
+    progress = Progress(stream=["a"], fingerprint={"seed": 0})
+    run.write_progress(progress)
+    assert run.read_progress() == progress and "mem_per_task" not in run.progress_file.read_text()
+    progress.finish_task([1.0], 2.0, {"training": 2.0}, None, 1.5)
+    run.write_progress(progress)
+    assert run.read_progress() == progress and run.stream_task(0) == "a"
+    assert list(json.loads(run.progress_file.read_text())) == [
+        "stream",
+        "rows",
+        "wall_time_s",
+        "phase_time_s",
+        "datasets",
+        "fingerprint",
+        "mem_per_task",
+    ]
+    run.write_results(StreamResults(stream=["a"], R=[[1.0]]))
     run.write_run_record({"method": "hispo"})
-    assert run.read_progress()["stream"] == ["a"] and run.has_results()
-    assert run.read_results() == {"stream": ["a"], "R": [[1.0]]}
+    assert run.has_results() and run.stream_results().R == [[1.0]]
     assert run.read_run_record() == {"method": "hispo"}
+
+
+def test_progress_of_an_older_run_gets_none_for_what_it_did_not_record():
+    """A progress file from before phase times and datasets: None for each finished task, and
+    MEM per task padded with None before the first task that measured it."""
+    progress = Progress.from_json({"stream": ["a", "b"], "rows": [[1.0, 0.0]], "wall_time_s": [1]})
+    assert progress.phase_time_s == [None] and progress.datasets == [None]
+    progress.finish_task([1.0, 1.0], 1.0, {"training": 1.0}, None, 2.0)
+    assert progress.mem_per_task == [None, 2.0] and progress.done == 2
 
 
 def test_committed_results_from_before_the_dataset_record_still_read():
@@ -92,7 +116,7 @@ def test_committed_results_from_before_the_dataset_record_still_read():
     from hispo_pl.benchmark.records import load_records
 
     root = Path(__file__).resolve().parents[1] / "docs" / "results" / "pointmaze-1"
-    old = RunDir(root / "ftn" / "seed0").read_results()
-    assert "datasets" not in old and len(old["R"]) == 4
+    old = RunDir(root / "ftn" / "seed0").stream_results()
+    assert old.datasets is None and "datasets" not in old.to_json() and len(old.R) == 4
     records, unreadable = load_records(root)
     assert unreadable == [] and {r.method for r in records} >= {"ftn", "hispo"}

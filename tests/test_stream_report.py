@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from hispo_pl.figures import simplex_figure, success_matrix_figure, to_triangle
-from hispo_pl.results import CriticDecision, LossDecision, StreamResults, ZeroShotDecision
+from hispo_pl.results import (
+    CriticDecision,
+    LossDecision,
+    StreamResults,
+    ZeroShotDecision,
+    rule_metrics,
+)
 from hispo_pl.stream_report import (
     alpha_metrics,
     anchors_markdown,
@@ -14,7 +20,6 @@ from hispo_pl.stream_report import (
     custom_scalars_layout,
     custom_scalars_summary,
     decisions_markdown,
-    rule_metrics,
     stream_metrics,
     success_markdown,
     task_row_metrics,

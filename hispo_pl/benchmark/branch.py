@@ -17,6 +17,7 @@ writes the results.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -30,7 +31,6 @@ PRUNING_CLASS = "SubspacePruning"
 PRUNING = f"hispo_pl.callbacks.{PRUNING_CLASS}"
 # a pruning knob's flag -> the subspace whose tolerance it sets
 EPS_FLAGS = {"--eps_high": "high", "--eps_low": "low"}
-PER_TASK = ("rows", "datasets", "mem_per_task")  # progress lists of one entry per finished task
 _FINGERPRINT_EPS = re.compile(
     rf"trainer\.callbacks\[{PRUNING_CLASS}[^\]]*\]\.init_args\.eps_(high|low)"
 )
@@ -89,8 +89,6 @@ def best_source(
 
 
 def _with_eps(record: Decision, eps: Mapping[str, float]) -> Decision:
-    import dataclasses
-
     if isinstance(record, LossDecision) and record.subspace in eps:
         return dataclasses.replace(record, eps=eps[record.subspace])
     return record
@@ -172,8 +170,8 @@ def _write_branch(
     from ..modules.hbc import read_checkpoint
 
     src, out = RunDir(source), RunDir(target)
-    progress = src.read_progress() or {}
-    rows = progress.get("rows") or []
+    progress = src.read_progress()
+    rows = progress.rows if progress is not None else []
     if len(rows) < tasks or not all(src.checkpoint(i).exists() for i in range(tasks)):
         raise RunDirError(f"{src}: fewer than {tasks} finished tasks with checkpoints to branch")
     if out.progress_file.exists():
@@ -195,13 +193,15 @@ def _write_branch(
                 copy_files([(search, out.search_file(i, subspace))])
     out.decisions_file.unlink(missing_ok=True)
     out.append_decisions([_with_eps(d, eps) for d in decisions])
-    branched = {
-        **{k: v[:tasks] for k, v in progress.items() if k in PER_TASK and v is not None},
-        **{k: v for k, v in progress.items() if k not in PER_TASK},
-        "wall_time_s": [0.0] * tasks,
-        "phase_time_s": [{"training": 0.0}] * tasks,
-    }
-    if "fingerprint" in progress:
-        branched["fingerprint"] = branched_fingerprint(progress["fingerprint"], eps)
+    fingerprint, memory = progress.fingerprint, progress.mem_per_task
+    branched = dataclasses.replace(
+        progress,
+        rows=progress.rows[:tasks],
+        datasets=progress.datasets[:tasks],
+        mem_per_task=memory[:tasks] if memory is not None else None,
+        wall_time_s=[0.0] * tasks,
+        phase_time_s=[{"training": 0.0}] * tasks,
+        fingerprint=branched_fingerprint(fingerprint, eps) if fingerprint is not None else None,
+    )
     out.write_run_record({"branched_from": str(src), **record, "branched_tasks": tasks})
     out.write_progress(branched)

@@ -235,7 +235,7 @@ def write_derived_run(
     src, out = RunDir(source), RunDir(target)
     if not derivable_run(src.path):
         raise RunDirError(f"{src}: no finished run with a checkpoint for every task to derive from")
-    results, progress = src.stream_results(), src.read_progress() or {}
+    results, progress = src.stream_results(), src.read_progress()
     config_text = keep_last_config_text(src.config_file.read_text(), out.path)
     config = yaml.safe_load(config_text)
     evaluation = _rollout_evaluation(config)
@@ -279,14 +279,21 @@ def write_derived_run(
         table=results_row_table(matrix),
         mem_per_task=memory if results.mem_per_task is not None else None,
     )
-    if progress:
-        progress = {**progress, "rows": R, "wall_time_s": wall, "phase_time_s": phases}
-        if "mem_per_task" in progress:  # measured as the source's run measures it
-            progress["mem_per_task"] = memory
-        if "fingerprint" in progress:  # flat settings: only keep differs
-            progress["fingerprint"] = {**progress["fingerprint"], "model.init_args.keep": "last"}
+    if progress is not None:
+        fingerprint = progress.fingerprint
+        if fingerprint is not None:  # flat settings: only keep differs
+            fingerprint = {**fingerprint, "model.init_args.keep": "last"}
+        progress = dataclasses.replace(
+            progress,
+            rows=R,
+            wall_time_s=wall,
+            phase_time_s=phases,
+            # measured as the source's run measures it
+            mem_per_task=memory if progress.mem_per_task is not None else None,
+            fingerprint=fingerprint,
+        )
         out.write_progress(progress)
-    decisions = src.read_decisions()
+    decisions = src.decisions()
     if decisions:  # the task-end decisions of identical training
         out.decisions_file.unlink(missing_ok=True)
         out.append_decisions(decisions)

@@ -6,7 +6,7 @@ import argparse
 import os
 
 from ..cli_errors import VerbParser
-from ..commands import NUM_THREADS_FLAGS
+from ..cli_common import NUM_THREADS_FLAGS
 
 
 def cpu_count() -> int:

@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..results import StreamResults
 from ..rundir import RunDir, read_json_object
 from .configs import configured_max_steps, configured_value
 
@@ -173,7 +174,10 @@ class PlannedRun:
     def write_results(self, results: dict) -> None:
         """Write the results a remote worker sent back."""
         run = RunDir(self.run_dir)
-        (run.write_result if self.single_task else run.write_results)(results)
+        if self.single_task:
+            run.write_result(results)
+        else:
+            run.write_results(StreamResults.from_json(results))
 
     @property
     def log_path(self) -> Path:

@@ -102,7 +102,7 @@ def _stream_of(run: RunDir) -> tuple[str | None, tuple[str, ...] | None]:
     except RunDirError:
         name = None
     try:
-        tasks = tuple(run.read_results()["stream"])
+        tasks = tuple(run.stream_results().stream)
     except RunDirError:
         tasks = None
     return name, tasks

@@ -5,7 +5,7 @@ rule (:class:`CriticPruning`). Anchors are added by HiSPO's
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import replace
 from functools import partial
 
 import lightning as L
@@ -14,39 +14,18 @@ from torch import Tensor
 from typing_extensions import override
 
 from ..decisions import critic_extends, extended_subspace_candidates, previous_subspace_candidates
-from ..modules.csp import CriticScoredSubspace
 from ..nn import eval_mode
+from ..results import CriticDecision, CriticSearchResult
 from ..rundir import task_label
 from ..search import RaceOutcome, race_candidates, race_subspace
-from .protocols import require
+from .protocols import CriticScoredSubspaces, PrunableSubspaces, require, require_subspaces
 from .state import KeyedState
 from .subspace import apply_decision, check_task_end_order, decide_subspaces
 
 
-def _require_critic(pl_module: L.LightningModule, who: str) -> CriticScoredSubspace:
+def _require_critic(pl_module: L.LightningModule, who: str) -> CriticScoredSubspaces:
     needs = "a subspace of policies with a critic"
-    return require(pl_module, CriticScoredSubspace, who, needs, "CSP")
-
-
-@dataclass
-class CriticSearchResult:
-    """What the critic search found in one subspace on the current task's held-out episodes.
-
-    ``w_curr`` / ``alpha_curr``: the best point of the grown subspace (the paper's
-    ``W(α_new)``, ``α_new``); ``w_prev`` / ``alpha_prev``: the best of the previous subspace
-    (``W(α_old)``, ``α_old``, last weight 0). ``l_curr`` / ``l_prev``: the imitation loss of
-    those two points (what CSPO's rule would compare), for reading the critic's choices
-    against the data. ``diagnostic``: :meth:`~hispo_pl.modules.CSP.critic_diagnostic` at
-    ``alpha_curr``, averaged over the batches.
-    """
-
-    w_curr: float
-    alpha_curr: list[float]
-    w_prev: float | None = None
-    alpha_prev: list[float] | None = None
-    l_curr: float | None = None
-    l_prev: float | None = None
-    diagnostic: dict[str, float] = field(default_factory=dict)
+    return require(pl_module, CriticScoredSubspaces, who, needs, "CSP")
 
 
 class CriticEvaluation(KeyedState):
@@ -139,7 +118,8 @@ class CriticEvaluation(KeyedState):
                     else trained[None]
                 ).to(device)
                 best = race(grown)
-                res = CriticSearchResult(-best.best_loss, grown[best.best].tolist())
+                found = grown[best.best].tolist()
+                res = CriticSearchResult(w_curr=-best.best_loss, alpha_curr=found)
                 chosen = [res.alpha_curr]
                 if k > 1:
                     previous = previous_subspace_candidates(self.n_candidates, k, generator)
@@ -153,8 +133,8 @@ class CriticEvaluation(KeyedState):
                 ).losses  # exhaustive: in the order given
                 res.l_curr = float(imitation[0])
                 res.l_prev = float(imitation[1]) if k > 1 else None
-                res.diagnostic = self._diagnostic(module, grown[best.best], batches, generator)
-                results[name] = res
+                diagnostic = self._diagnostic(module, grown[best.best], batches, generator)
+                results[name] = replace(res, **diagnostic)
         return results
 
     def _diagnostic(self, module, alpha: Tensor, batches, generator) -> dict[str, float]:
@@ -189,7 +169,7 @@ class CriticPruning(KeyedState):
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
-        _require_critic(pl_module, type(self).__name__)
+        require_subspaces(pl_module, PrunableSubspaces, type(self).__name__)
         check_task_end_order(trainer.callbacks, self, CriticEvaluation)
 
     @override
@@ -197,21 +177,17 @@ class CriticPruning(KeyedState):
         decisions = decide_subspaces(trainer, pl_module, partial(self._decide, pl_module))
         _log_critic(trainer, pl_module, decisions)
 
-    def _decide(self, module, name: str, res: CriticSearchResult) -> dict:
+    def _decide(self, module, name: str, res: CriticSearchResult) -> CriticDecision:
         keep_new = None if res.w_prev is None else critic_extends(res.w_curr, res.w_prev, self.eps)
         action = apply_decision(module, name, keep_new, res.alpha_curr, res.alpha_prev)
-        record = asdict(res)
-        diagnostic = record.pop("diagnostic")
-        return {
-            "task": module.task_index,
-            "subspace": name,
-            "decision": action,
-            "rule": "critic",
-            "eps": self.eps,
-            "anchors": module.n_anchors(name),
-            **record,
-            **diagnostic,
-        }
+        return CriticDecision.of(
+            res,
+            task=module.task_index,
+            subspace=name,
+            decision=action,
+            eps=self.eps,
+            anchors=module.n_anchors(name),
+        )
 
 
 CRITIC_TAGS = {
@@ -226,14 +202,14 @@ CRITIC_TAGS = {
 }
 
 
-def _log_critic(trainer: L.Trainer, module, decisions: list[dict]) -> None:
+def _log_critic(trainer: L.Trainer, module, decisions: list[CriticDecision]) -> None:
     """The critic's values and diagnostic as ``critic/<subspace>/<tag>`` at the task's step."""
     if trainer.logger is None:
         return
     metrics = {
-        f"critic/{d['subspace']}/{tag}": d[key]
+        f"critic/{d.subspace}/{tag}": getattr(d, key)
         for d in decisions
         for key, tag in CRITIC_TAGS.items()
-        if d.get(key) is not None
+        if getattr(d, key) is not None
     }
     trainer.logger.log_metrics(metrics, step=task_label(module.task_index))

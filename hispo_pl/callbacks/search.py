@@ -5,7 +5,6 @@ decides between. The candidates are raced by :mod:`hispo_pl.search`."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Literal
 
 import lightning as L
@@ -17,26 +16,11 @@ from ..decisions import extended_subspace_candidates, previous_subspace_candidat
 from ..errors import TrainingDivergedError
 from ..nn import eval_mode
 from ..progress import Progress
+from ..results import SearchResult
 from ..rundir import RunDir, task_label
 from ..search import RaceOutcome, race_subspace, resolve_precision
-from .protocols import require_subspace_policy
+from .protocols import SearchableSubspaces, require_subspaces
 from .state import KeyedState
-
-
-@dataclass
-class SearchResult:
-    """What the search of one subspace found on the current task. Losses are scored on the
-    task's held-out episodes (what the decision uses); ``*_train`` on its training episodes."""
-
-    l_curr: float
-    alpha_curr: list[float]
-    l_prev: float | None = None
-    alpha_prev: list[float] | None = None
-    l_trained: float | None = None  # the trained weights' loss, when refine_current moved them
-    l_curr_train: float | None = None
-    l_prev_train: float | None = None
-    l_window: float | None = None  # L_curr when the convergence window opened
-    improvement: float | None = None  # relative fall of L_curr over the window (convergence)
 
 
 def _refine(result: SearchResult, candidates: Tensor, race: RaceOutcome) -> None:
@@ -156,7 +140,7 @@ class DirichletEvaluation(KeyedState):
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
-        require_subspace_policy(pl_module, type(self).__name__)
+        require_subspaces(pl_module, SearchableSubspaces, type(self).__name__)
         self._l_window = {}
 
     @override
@@ -247,7 +231,7 @@ class DirichletEvaluation(KeyedState):
 
                 alpha_curr = module.current_alpha(name).to(device)
                 l_curr = race(alpha_curr[None], probe=None).best_loss
-                result = SearchResult(l_curr, alpha_curr.tolist())
+                result = SearchResult(l_curr=l_curr, alpha_curr=alpha_curr.tolist())
                 k = module.n_anchors(name)
                 cands, outcome = None, None
                 if k > 1 and prev:

@@ -6,7 +6,6 @@ decision is carried out and logged is shared with CSP's :mod:`.critic`."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict
 
 import lightning as L
 import torch
@@ -15,14 +14,12 @@ from lightning.pytorch.utilities import rank_zero_warn
 from typing_extensions import override
 
 from ..decisions import decided_by_budget, keep_previous
-from ..figures import anchor_counts_figure, rule_figure
-from ..results import Decision, ZeroShotDecision
+from ..results import Decision, LossDecision, SearchResult, ZeroShotDecision, rule_metrics
 from ..rundir import RunDir, task_label
-from ..stream_report import rule_metrics
 from ..tasks import Family
-from .protocols import require_subspace_policy
+from .protocols import ExtendableSubspaces, PrunableSubspaces, require_subspaces
 from .rollout import RolloutEvaluation
-from .search import DirichletEvaluation, SearchResult
+from .search import DirichletEvaluation
 from .state import KeyedState
 
 
@@ -34,7 +31,7 @@ class AnchorExtension(L.Callback):
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
-        module = require_subspace_policy(pl_module, type(self).__name__)
+        module = require_subspaces(pl_module, ExtendableSubspaces, type(self).__name__)
         if stage != "fit" or module.task_index == 0:
             return
         task = getattr(getattr(trainer, "datamodule", None), "task", None)
@@ -101,19 +98,19 @@ class SubspacePruning(KeyedState):
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
-        require_subspace_policy(pl_module, type(self).__name__)
+        require_subspaces(pl_module, PrunableSubspaces, type(self).__name__)
         check_task_end_order(trainer.callbacks, self, DirichletEvaluation)
 
     @override
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         family = trainer.datamodule.task.env_family
 
-        def decide(name: str, res: SearchResult) -> dict:
+        def decide(name: str, res: SearchResult) -> LossDecision:
             return self._decide(pl_module, name, res, self.tolerance(name, family))
 
         decide_subspaces(trainer, pl_module, decide)
 
-    def _decide(self, module, name: str, res: SearchResult, eps: float) -> dict:
+    def _decide(self, module, name: str, res: SearchResult, eps: float) -> LossDecision:
         first = res.l_prev is None
         keep_new = None if first else not keep_previous(res.l_prev, res.l_curr, eps)
         action = apply_decision(module, name, keep_new, res.alpha_curr, res.alpha_prev)
@@ -125,14 +122,14 @@ class SubspacePruning(KeyedState):
                 f"the steps, more than eps = {eps}; the step budget, not the task, decided "
                 "this. Train longer (--trainer.max_steps) for a decision about the task."
             )
-        return {
-            "task": module.task_index,
-            "subspace": name,
-            "decision": action,
-            "eps": eps,
-            "anchors": module.n_anchors(name),
-            **asdict(res),
-        }
+        return LossDecision.of(
+            res,
+            task=module.task_index,
+            subspace=name,
+            decision=action,
+            eps=eps,
+            anchors=module.n_anchors(name),
+        )
 
 
 def apply_decision(
@@ -156,8 +153,8 @@ def apply_decision(
 
 
 def decide_subspaces(
-    trainer: L.Trainer, module, decide: Callable[[str, object], dict]
-) -> list[dict]:
+    trainer: L.Trainer, module, decide: Callable[[str, object], Decision]
+) -> list[Decision]:
     """A pruning callback's task end: ``decide(name, result)`` for every subspace the search
     just scored (the module's task record), then every weight frozen and the decisions
     logged."""
@@ -178,13 +175,12 @@ SEARCH_TAGS = {
 """A decision's values logged as ``search/<subspace>/<tag>`` where it has them."""
 
 
-def log_decisions(trainer: L.Trainer, module, decisions: list[dict]) -> None:
+def log_decisions(trainer: L.Trainer, module, records: list[Decision]) -> None:
     """Append decisions to ``decisions.jsonl`` in the run dir and log them to TensorBoard.
 
     The anchor counts start with a point at step 0 (one anchor, before any task): with only
     the tasks' points, TensorBoard's default outlier scaling (it leaves out a chart's extreme
     5 %) draws a count that grew once, 1 then 2, as an empty chart."""
-    records = [Decision.from_json(d) for d in decisions]
     RunDir(trainer.default_root_dir).append_decisions(records)
     logger = trainer.logger
     if logger is None:
@@ -193,10 +189,9 @@ def log_decisions(trainer: L.Trainer, module, decisions: list[dict]) -> None:
     metrics = {f"anchors/{d.subspace}/count": d.anchors for d in records}
     metrics.update(rule_metrics(records))
     for d in records:
-        values = d.to_json()
         for key, tag in SEARCH_TAGS.items():
-            if values.get(key) is not None:
-                metrics[f"search/{d.subspace}/{tag}"] = values[key]
+            if getattr(d, key, None) is not None:
+                metrics[f"search/{d.subspace}/{tag}"] = getattr(d, key)
         if isinstance(d, ZeroShotDecision):
             for policy, rate in d.pac_rate.items():
                 metrics[f"zero_shot/{d.subspace}/pac_rate_{policy}"] = rate
@@ -204,6 +199,8 @@ def log_decisions(trainer: L.Trainer, module, decisions: list[dict]) -> None:
         logger.log_metrics({f"anchors/{d.subspace}/count": 1 for d in records}, step=0)
     logger.log_metrics(metrics, step=task)
     if isinstance(logger, TensorBoardLogger):
+        from ..figures import anchor_counts_figure, rule_figure  # matplotlib: only to draw
+
         text = "\n".join(f"{d.subspace}: {d.decision} (anchors {d.anchors})" for d in records)
         logger.experiment.add_text("decisions", text, global_step=task)
         so_far = RunDir(trainer.default_root_dir).decisions()  # every task's, this one last

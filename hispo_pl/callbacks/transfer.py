@@ -14,8 +14,9 @@ from typing_extensions import override
 from ..decisions import pac_rate, zero_shot
 from ..nn import eval_mode
 from ..nn.simplex import sample_dirichlet
+from ..results import ZeroShotDecision
 from ..search import race_subspace, resolve_precision
-from .protocols import require_subspace_policy
+from .protocols import TransferableSubspaces, require_subspaces
 from .state import KeyedState
 from .subspace import AnchorExtension, log_decisions
 
@@ -77,7 +78,7 @@ class ZeroShotTransfer(KeyedState):
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
-        module = require_subspace_policy(pl_module, type(self).__name__)
+        module = require_subspaces(pl_module, TransferableSubspaces, type(self).__name__)
         self._skip = False
         _check_before_extension(trainer.callbacks, self)
         if stage != "fit" or module.task_index == 0:
@@ -89,8 +90,7 @@ class ZeroShotTransfer(KeyedState):
                 sum(self._train_seconds) / len(self._train_seconds) if self._train_seconds else None
             )
             for d in decisions:
-                d["steps_skipped"] = trainer.max_steps
-                d["time_saved_s"] = saved
+                d.steps_skipped, d.time_saved_s = trainer.max_steps, saved
         log_decisions(trainer, module, decisions)
 
     @override
@@ -105,7 +105,7 @@ class ZeroShotTransfer(KeyedState):
             self._train_seconds.append(time.perf_counter() - self._started)
 
     @torch.no_grad()
-    def _transfer(self, trainer: L.Trainer, module) -> list[dict]:
+    def _transfer(self, trainer: L.Trainer, module) -> list[ZeroShotDecision]:
         dm = trainer.datamodule
         device = module.device
         batches = dm.fixed_batches(self.n_batches, self.seed, device=device)
@@ -133,16 +133,16 @@ class ZeroShotTransfer(KeyedState):
                 if accepted:
                     module.transfer(name, best)
                 decisions.append(
-                    {
-                        "task": module.task_index,
-                        "subspace": name,
-                        "decision": "zero-shot" if accepted else "train",
-                        "pac_rate": rates,
-                        "eps": eps,
-                        "delta": self.delta,
-                        "anchors": k,
-                        "alpha": best.tolist(),
-                    }
+                    ZeroShotDecision(
+                        task=module.task_index,
+                        subspace=name,
+                        decision="zero-shot" if accepted else "train",
+                        pac_rate=rates,
+                        eps=eps,
+                        delta=self.delta,
+                        anchors=k,
+                        alpha=best.tolist(),
+                    )
                 )
         return decisions
 

@@ -1,22 +1,17 @@
-"""What a run's files hold, as types: :class:`Decision` (one line of ``decisions.jsonl``, one
-class per kind of decision), :class:`StreamResults` (``results.json``) and :class:`TaskResult`
-(a single-task fit's ``result.json``). :class:`~hispo_pl.rundir.RunDir` reads and writes them.
-
-Each type writes its JSON keys in the order the files have always had them, so a file read and
-written again is the same bytes; keys a type does not know are kept (``extra``) and written
-last. A new kind of decision is one class here, listed in :data:`DECISION_KINDS`: its fields,
-how the console states its comparison, and its table's columns. No torch here.
+"""The kinds of line in ``decisions.jsonl``: one :class:`Decision` class per kind, each the
+result of the search it decided on (:class:`SearchResult`, :class:`CriticSearchResult`) with
+the outcome, written by the callbacks that decide and read back by :class:`~hispo_pl.rundir.
+RunDir`. A new kind is one class here, listed in :data:`DECISION_KINDS`: its fields, how the
+console states its comparison, and its table's columns. No torch here.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-import numpy as np
-
-from .metrics import METRICS, mean_std
+from .json_fields import found_fields, header_first, json_fields, split_known
 
 Column = tuple[str, str, Callable[[Any], str]]
 """A table column: header, Markdown alignment (``---`` or ``---:``), the cell of a record."""
@@ -33,20 +28,6 @@ def _text(value: Any) -> str:
 def _ratio(num: float | None, den: float | None, digits: int = 3) -> str:
     """``num / den``, empty when either is unknown (or the denominator is 0)."""
     return "" if num is None or not den else f"{num / den:.{digits}f}"
-
-
-def _json_fields(obj: Any) -> dict:
-    """The dataclass's fields in declaration order (the file's key order), then ``extra``."""
-    out = {f.name: getattr(obj, f.name) for f in fields(obj) if f.name != "extra"}
-    return {**out, **obj.extra}
-
-
-def _split(cls: type, record: dict) -> tuple[dict, dict]:
-    """``record``'s keys that are fields of ``cls``, and the rest (kept as ``extra``)."""
-    names = {f.name for f in fields(cls)} - {"extra"}
-    return {k: v for k, v in record.items() if k in names}, {
-        k: v for k, v in record.items() if k not in names
-    }
 
 
 @dataclass(kw_only=True)
@@ -85,7 +66,14 @@ class Decision:
         return None
 
     def to_json(self) -> dict:
-        return _json_fields(self)
+        return json_fields(self)
+
+    @classmethod
+    def of(cls, search: Any, **outcome: Any) -> Decision:
+        """The decision taken on ``search`` (a search's result, e.g. :class:`SearchResult`,
+        whose fields this kind has), with the ``outcome``: ``task``, ``subspace``,
+        ``decision`` and this kind's own fields (``eps``, ``anchors``)."""
+        return cls(**found_fields(search), **outcome)
 
     @classmethod
     def from_json(cls, record: dict) -> Decision:
@@ -98,26 +86,36 @@ class Decision:
         missing = [k for k in ("task", "subspace", "decision") if k not in record]
         if kind is None or missing:
             raise ValueError(f"not a decision record: {record}")
-        known, extra = _split(kind, record)
+        known, extra = split_known(kind, record)
         return kind(**known, extra=extra)
 
 
 @dataclass(kw_only=True)
-class LossDecision(Decision):
-    """HiSPO's rule on a new anchor: prune iff ``L_prev <= (1 + eps) · L_curr`` (imitation
-    losses on the task's held-out episodes; ``*_train`` on its training episodes)."""
+class SearchResult:
+    """What HiSPO's search (:class:`~hispo_pl.callbacks.DirichletEvaluation`) found in one
+    subspace on the current task: the best points of the grown subspace (``curr``) and of the
+    previous one (``prev``), with their losses on the task's held-out episodes (what the rule
+    compares) and on its training episodes (``*_train``). A :class:`LossDecision` is this
+    with the rule's outcome."""
 
-    eps: float | None = None
-    anchors: int | None = None
     l_curr: float | None = None
     alpha_curr: list[float] | None = None
     l_prev: float | None = None
     alpha_prev: list[float] | None = None
-    l_trained: float | None = None
+    l_trained: float | None = None  # the trained weights' loss, when refine_current moved them
     l_curr_train: float | None = None
     l_prev_train: float | None = None
-    l_window: float | None = None
-    improvement: float | None = None
+    l_window: float | None = None  # L_curr when the convergence window opened
+    improvement: float | None = None  # relative fall of L_curr over the window (convergence)
+
+
+@dataclass(kw_only=True)
+class LossDecision(SearchResult, Decision):
+    """HiSPO's rule on a new anchor: prune iff ``L_prev <= (1 + eps) · L_curr``, on the
+    search's result (:class:`SearchResult`)."""
+
+    eps: float | None = None
+    anchors: int | None = None
 
     LEGEND = "L_prev / L_curr vs 1 + eps"
     COLUMNS = (
@@ -137,6 +135,9 @@ class LossDecision(Decision):
     def reads(cls, record: dict) -> bool:
         return record.get("decision") in ("first", "keep", "prune") and "rule" not in record
 
+    def to_json(self) -> dict:
+        return header_first(json_fields(self), ("task", "subspace", "decision", "eps", "anchors"))
+
     @property
     def tolerance(self) -> float | None:
         return self.eps
@@ -148,14 +149,18 @@ class LossDecision(Decision):
 
 
 @dataclass(kw_only=True)
-class CriticDecision(Decision):
-    """CSP's rule: keep the new anchor iff the critic values the grown subspace's best point
-    above ``W_prev + eps · |W_prev|``; the imitation losses of both points and the critic's
-    action-dependence diagnostic are read out beside it."""
+class CriticSearchResult:
+    """What CSP's critic search (:class:`~hispo_pl.callbacks.CriticEvaluation`) found in one
+    subspace on the current task's held-out episodes.
 
-    rule: str = "critic"
-    eps: float | None = None
-    anchors: int | None = None
+    ``w_curr`` / ``alpha_curr``: the best point of the grown subspace (the paper's
+    ``W(α_new)``, ``α_new``); ``w_prev`` / ``alpha_prev``: the best of the previous subspace
+    (``W(α_old)``, ``α_old``, last weight 0). ``l_curr`` / ``l_prev``: the imitation loss of
+    those two points (what CSPO's rule would compare), for reading the critic's choices against
+    the data. ``q_*`` and ``action_dependence``: the critic's action-dependence diagnostic
+    (:meth:`~hispo_pl.modules.CSP.critic_diagnostic`) at ``alpha_curr``, averaged over the
+    batches. A :class:`CriticDecision` is this with the rule's outcome."""
+
     w_curr: float | None = None
     alpha_curr: list[float] | None = None
     w_prev: float | None = None
@@ -168,6 +173,17 @@ class CriticDecision(Decision):
     q_data: float | None = None
     q_policy: float | None = None
     q_uniform: float | None = None
+
+
+@dataclass(kw_only=True)
+class CriticDecision(CriticSearchResult, Decision):
+    """CSP's rule: keep the new anchor iff the critic values the grown subspace's best point
+    above ``W_prev + eps · |W_prev|``, on the critic search's result
+    (:class:`CriticSearchResult`)."""
+
+    rule: str = "critic"
+    eps: float | None = None
+    anchors: int | None = None
 
     LEGEND = "W_curr vs W_prev + eps |W_prev|"
     COLUMNS = (
@@ -186,6 +202,10 @@ class CriticDecision(Decision):
     @classmethod
     def reads(cls, record: dict) -> bool:
         return record.get("rule") == "critic"
+
+    def to_json(self) -> dict:
+        header = ("task", "subspace", "decision", "rule", "eps", "anchors")
+        return header_first(json_fields(self), header)
 
     @property
     def kind(self) -> str:
@@ -234,7 +254,7 @@ class ZeroShotDecision(Decision):
         return "zero-shot"
 
     def to_json(self) -> dict:
-        out = _json_fields(self)
+        out = json_fields(self)
         if self.steps_skipped is None:  # not skipped: the file has neither key
             del out["steps_skipped"], out["time_saved_s"]
         return out
@@ -265,115 +285,20 @@ def decisions_table(
     return [header, "|" + "".join(f"{a}|" for _, a in columns), *rows]
 
 
-@dataclass(kw_only=True)
-class StreamResults:
-    """A finished stream (``results.json``): its tasks, the success matrix ``R`` (fractions;
-    None above the diagonal), wall and phase times per task, the datasets it read, the metrics
-    of :data:`~hispo_pl.metrics.METRICS` it has, the stored bytes, MEM after each task, anchors
-    and anchor weights per subspace, and ``R`` as printed. ``None``: a file from before that
-    key existed."""
-
-    stream: list[str]
-    R: list[list[float | None]]
-    wall_time_s: list[float] | None = None
-    phase_time_s: list[dict[str, float] | None] | None = None
-    datasets: list[Any] | None = None
-    metrics: dict[str, float] = field(default_factory=dict)
-    stored_bytes: int | None = None
-    anchors: dict[str, int] | None = None
-    alphas: dict[str, list[list[float]]] | None = None
-    table: str = ""
-    mem_per_task: list[float | None] | None = None  # MEM after each task (None: not measured)
-    extra: dict = field(default_factory=dict)
-
-    @property
-    def matrix(self) -> np.ndarray:
-        """``R`` as a float array, NaN where the file has null."""
-        return np.array([[np.nan if v is None else v for v in row] for row in self.R], dtype=float)
-
-    def diagonal(self) -> list[float]:
-        """Each task's success right after it was trained: FWT's reference when this is a
-        from-scratch run."""
-        return [float(self.R[k][k]) for k in range(len(self.R))]
-
-    def to_json(self) -> dict:
-        """The file's keys in its order: the metrics of the success matrix, then the stored
-        bytes and the metrics measured on the model (MEM)."""
-        out: dict = {"stream": self.stream, "R": self.R}
-        for name in ("wall_time_s", "phase_time_s", "datasets"):
-            if getattr(self, name) is not None:
-                out[name] = getattr(self, name)
-        for of_model in (False, True):
-            if of_model and self.stored_bytes is not None:
-                out["stored_bytes"] = self.stored_bytes
-            out |= {
-                m.name: self.metrics[m.name]
-                for m in METRICS
-                if m.of_model == of_model and m.name in self.metrics
-            }
-        for name in ("mem_per_task", "anchors", "alphas"):
-            if getattr(self, name) is not None:
-                out[name] = getattr(self, name)
-        return {**out, "table": self.table, **self.extra}
-
-    @classmethod
-    def from_json(cls, record: dict) -> StreamResults:
-        names = {m.name for m in METRICS}
-        metrics = {k: v for k, v in record.items() if k in names}
-        known, extra = _split(cls, {k: v for k, v in record.items() if k not in names})
-        return cls(**known, metrics=metrics, extra=extra)
+# HiSPO's rule as TensorBoard draws it: the new anchor is pruned iff L_prev / L_curr is at or
+# below 1 + eps. A ratio and its line stay near 1 whatever the losses' scale, where the losses
+# themselves (0.03 for one subspace, 1.9 for the other) would crowd a chart's axis. '+' and '/'
+# cannot be written in a tag's last part.
+RULE_RATIO = "L_prev_over_L_curr"
+RULE_LINE = "1_plus_eps"
 
 
-def summarize_runs(runs: Sequence[StreamResults]) -> dict[str, tuple[float, float]]:
-    """Mean and (population) standard deviation over runs of each metric of :data:`METRICS`
-    that every run has, as the paper's tables report them, and of the wall time of a whole
-    stream in minutes (runs that recorded it)."""
-    if not runs:
-        raise ValueError("no runs to summarise")
-    columns = {
-        m.name: [r.metrics[m.name] for r in runs]
-        for m in METRICS
-        if all(m.name in r.metrics for r in runs)
-    }
-    if all(r.wall_time_s is not None for r in runs):
-        columns["minutes"] = [sum(r.wall_time_s) / 60 for r in runs]
-    return {k: mean_std(v) for k, v in columns.items()}
-
-
-def fwt_reference(scratch: StreamResults | None, n_tasks: int) -> list[float] | None:
-    """The per-task success FWT is measured against: the R diagonal of a from-scratch run of
-    a stream as long (None: no such run)."""
-    if scratch is None or len(scratch.R) != n_tasks:
-        return None
-    return scratch.diagonal()
-
-
-@dataclass(kw_only=True)
-class TaskResult:
-    """A single-task fit's final evaluation (``result.json``): the method, the task, the
-    dataset it trained on, the evaluation's episodes, the fit's seconds and the evaluation's
-    values (``success``, ``episode_length``, ``flip_rate``, ``step``)."""
-
-    method: str
-    task: str
-    dataset: str | None = None
-    dataset_episodes: int | None = None
-    episodes: int | None = None
-    seconds: float | None = None
-    evaluation: dict[str, float] = field(default_factory=dict)
-
-    @property
-    def success(self) -> float:
-        return self.evaluation["success"]
-
-    def to_json(self) -> dict:
-        out: dict = {"method": self.method, "task": self.task}
-        if self.dataset is not None:  # a fit from before datasets were recorded has neither
-            out |= {"dataset": self.dataset, "dataset_episodes": self.dataset_episodes}
-        return {**out, "episodes": self.episodes, "seconds": self.seconds, **self.evaluation}
-
-    @classmethod
-    def from_json(cls, record: dict) -> TaskResult:
-        known, evaluation = _split(cls, record)
-        known.pop("evaluation", None)
-        return cls(**known, evaluation=evaluation)
+def rule_metrics(decisions: Sequence[Decision]) -> dict[str, float]:
+    """``search/<subspace>/L_prev_over_L_curr`` and ``search/<subspace>/1_plus_eps`` of each
+    loss-rule decision that compared two losses (tasks after the first)."""
+    metrics = {}
+    for d in decisions:
+        if isinstance(d, LossDecision) and d.l_prev is not None and d.l_curr and d.eps is not None:
+            metrics[f"search/{d.subspace}/{RULE_RATIO}"] = d.l_prev / d.l_curr
+            metrics[f"search/{d.subspace}/{RULE_LINE}"] = 1.0 + d.eps
+    return metrics
