@@ -70,10 +70,6 @@ def _fit(module, task_index: int, root, callbacks, stream=STREAM) -> L.Trainer:
     return trainer
 
 
-def _decisions(root) -> list[LossDecision]:
-    return RunDir(root).decisions()
-
-
 def _fresh_module(seed: int = 0) -> HiSPO:
     L.seed_everything(seed, verbose=False)
     return HiSPO(**SIZES)
@@ -104,7 +100,7 @@ def test_first_task_stores_the_single_anchor(first_task):
         assert module.n_anchors(name) == 1
         assert module.task_alphas(name).tolist() == [[1.0]]
     assert not any(p.requires_grad for p in module.parameters())  # frozen after the task
-    decisions = _decisions(root)
+    decisions = RunDir(root).decisions()
     assert [(d.task, d.subspace, d.decision) for d in decisions] == [
         (0, "high", "first"),
         (0, "low", "first"),
@@ -150,7 +146,7 @@ def test_extension_happens_before_the_optimiser_and_a_huge_eps_prunes(first_task
     for name in SUBSPACES:
         assert module.n_anchors(name) == 1
         assert module.task_alphas(name).tolist() == [[1.0], [1.0]]
-    decisions = _decisions(tmp_path)
+    decisions = RunDir(tmp_path).decisions()
     assert [(d.task, d.decision, d.anchors) for d in decisions] == [
         (1, "prune", 1),
         (1, "prune", 1),
@@ -238,7 +234,7 @@ def test_kept_anchors_grow_the_search_to_the_previous_simplex(first_task, tmp_pa
         assert np.all(alphas[:, 2] == 0)
         np.testing.assert_allclose(alphas.sum(1), 1.0, rtol=1e-6)
         assert np.all(losses >= 0) and np.all(np.isfinite(losses))
-    decisions = _decisions(tmp_path)
+    decisions = RunDir(tmp_path).decisions()
     assert [d.decision for d in decisions] == ["keep"] * 4
     assert [d.anchors for d in decisions] == [2, 2, 3, 3]
     for d in decisions[2:]:  # the best candidate is the one reported
@@ -322,9 +318,7 @@ def test_rollout_before_pruning_is_rejected(tiny_umaze, tmp_path):
 def test_subspace_callbacks_reject_a_plain_hbc(tiny_umaze, tmp_path, callback):
     cbs = [callback()] if callback is not SubspacePruning else [DirichletEvaluation(), callback()]
     hbc = HBC(**SIZES)
-    _fit_expecting(
-        hbc, cbs, tmp_path, TypeError, r"Subspaces protocol, e.g. hispo_pl.modules.HiSPO"
-    )
+    _fit_expecting(hbc, cbs, tmp_path, TypeError, "Subspaces protocol, e.g. hispo_pl")
 
 
 class RecordLogger(Logger):
