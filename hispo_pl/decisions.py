@@ -11,13 +11,24 @@ if TYPE_CHECKING:
     from torch import Tensor
 
 
+def tolerance_problem(eps: object) -> str | None:
+    """Why ``eps`` is no tolerance (of a pruning rule, a critic rule, a zero-shot test), or
+    None: the one check of an ε, whether a rule gets it or a configuration gives it."""
+    number = isinstance(eps, int | float) and not isinstance(eps, bool)
+    return None if number and eps >= 0 else "must be >= 0"  # NaN fails eps >= 0
+
+
+def _check_tolerance(eps: float) -> None:
+    if tolerance_problem(eps) is not None:
+        raise ValueError(f"eps must be non-negative, got {eps}")
+
+
 def keep_previous(l_prev: float, l_curr: float, eps: float) -> bool:
     """Prune the new anchor iff the best point of the previous subspace is nearly as good:
     ``L_prev <= (1 + eps) * L_curr``, on positive losses."""
     if l_prev < 0 or l_curr < 0:
         raise ValueError(f"the rule compares positive losses, got L_prev={l_prev}, L_curr={l_curr}")
-    if eps < 0:
-        raise ValueError(f"eps must be non-negative, got {eps}")
+    _check_tolerance(eps)
     return l_prev <= (1.0 + eps) * l_curr
 
 
@@ -30,8 +41,7 @@ def critic_extends(w_new: float, w_old: float, eps: float) -> bool:
     critic may dip below 0), and still "better by a share eps of the old value's size" when
     ``W_old < 0``, where ``(1 + eps) · W_old`` would ask for less than ``W_old`` itself.
     """
-    if eps < 0:
-        raise ValueError(f"eps must be non-negative, got {eps}")
+    _check_tolerance(eps)
     return w_new > w_old + eps * abs(w_old)
 
 
@@ -82,8 +92,7 @@ def pac_rate(distances: Tensor, eps: float) -> float:
     """Empirical ``P[d(a, â) <= eps]``: the fraction of samples predicted within ``eps``."""
     if distances.numel() == 0:
         raise ValueError("the PAC criterion needs at least one sample")
-    if eps < 0:
-        raise ValueError(f"eps must be non-negative, got {eps}")
+    _check_tolerance(eps)
     return int((distances <= eps).sum()) / distances.numel()
 
 

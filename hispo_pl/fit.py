@@ -26,9 +26,10 @@ from .console import StopWhenAsked, print_stream_results, say
 from .data.datamodule import TaskDataModule
 from .errors import ConfigError, Interrupted, UserError
 from .io import replace_link
+from .methods import all_knobs
 from .modules.hbc import GoalConditionedBC
 from .presets import apply_preset, given_keys, kept_note
-from .run_checks import METHOD_KNOBS, apply_method_knobs, validate_config
+from .run_checks import apply_method_knobs, validate_config
 from .rundir import RunDir
 from .tasks import unseen_variant_tasks, unseen_variants_message
 
@@ -75,9 +76,8 @@ class HispoCLI(LightningCLI):
             "(docs/method.md lists both); the budget stays the stream config's, and a dotted "
             "flag given here wins over the preset",
         )
-        for flag, (text, _) in METHOD_KNOBS.items():
-            kind = float if flag.startswith("eps") else int
-            parser.add_argument(f"--{flag}", type=kind | None, default=None, help=text)
+        for flag, knob in all_knobs().items():
+            parser.add_argument(f"--{flag}", type=knob.kind | None, default=None, help=knob.help)
         for dim in ("obs_dim", "action_dim", "goal_dim"):
             parser.link_arguments(f"data.{dim}", f"model.init_args.{dim}", apply_on="instantiate")
         for name in ("binary_actions", "low_obs", "low_velocity", "high_obs"):  # data's choice

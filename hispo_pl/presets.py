@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from .errors import ConfigError
+from .methods import PaperOverlay, config_callbacks, config_spec
 from .tasks import parse_stream, parse_task
 
 PRESETS = ("paper",)
@@ -30,18 +31,10 @@ PAPER_COMMON: tuple[tuple[str, object], ...] = (
     ("data.low_inputs", "observation"),  # its input sizes: observation, position and goal
     ("data.high_inputs", "observation"),
 )
-# widths (high, low): 64 / 256; HiSPO 70 / 300 on AntMaze and the game mazes
+# widths (high, low): 64 / 256 unless the method's overlay says otherwise for a family
+# (:attr:`hispo_pl.methods.PaperOverlay.widths`: HiSPO's 70 / 300 on AntMaze and the games)
 PAPER_WIDTHS = (64, 256)
-PAPER_HISPO_WIDTHS = {"antmaze": (70, 300), "amazeville": (70, 300), "simpletown": (70, 300)}
 PAPER_BATCH = {"pointmaze": 1024, "antmaze": 1024, "amazeville": 64, "simpletown": 64}
-# HiSPO's method text: a new anchor at random, the trained weights as alpha_curr; one tolerance
-# of its grid {0.01, 0.05, 0.1, 0.25} for both subspaces
-PAPER_HISPO_MODEL = (("model.init_args.anchor_init", "random"),)
-PAPER_CALLBACKS: dict[str, dict[str, object]] = {
-    "DirichletEvaluation": {"refine_current": False},
-    "SubspacePruning": {"eps_high": 0.1, "eps_low": 0.1},
-}
-HISPO_CLASSES = ("HiSPO",)
 
 
 def _family(config) -> str:
@@ -95,24 +88,30 @@ def _get(config, key: str):
     return node
 
 
+def paper_overlay(config) -> PaperOverlay:
+    """What the paper's preset sets for the method ``config`` names, beyond what it sets for
+    every method (its :class:`~hispo_pl.methods.MethodSpec`; nothing for an unknown one)."""
+    spec = config_spec(config)
+    return spec.paper if spec is not None else PaperOverlay()
+
+
 def preset_settings(config, name: str) -> list[tuple[str, object]]:
     """Preset ``name``'s settings of ``config`` (a parsed ``fit`` configuration) as (dotted
-    key, value), its callbacks' apart (:data:`PAPER_CALLBACKS`).
+    key, value), its callbacks' apart (:attr:`~hispo_pl.methods.PaperOverlay.callbacks`).
 
     Raises:
         ConfigError: an unknown preset."""
     if name not in PRESETS:
         raise ConfigError(f"--preset {name}: unknown preset; the presets are {', '.join(PRESETS)}")
     family = _family(config)
-    model = str((config.get("model") or {}).get("class_path", "")).rsplit(".", 1)[-1]
-    is_hispo = model in HISPO_CLASSES
-    high, low = PAPER_HISPO_WIDTHS.get(family, PAPER_WIDTHS) if is_hispo else PAPER_WIDTHS
+    overlay = paper_overlay(config)
+    high, low = overlay.widths.get(family, PAPER_WIDTHS)
     return [
         *PAPER_COMMON,
         ("model.init_args.backbone.high_hidden", high),
         ("model.init_args.backbone.low_hidden", low),
         ("data.batch_size", PAPER_BATCH[family]),
-        *(PAPER_HISPO_MODEL if is_hispo else ()),
+        *overlay.settings.items(),
     ]
 
 
@@ -129,10 +128,11 @@ def apply_preset(config, name: str | None, given: set[str] = frozenset()) -> dic
             _set(config, key, value)
         elif _get(config, key) != value:
             kept[key] = (_get(config, key), value)
-    for callback in (config.get("trainer") or {}).get("callbacks") or []:
-        settings = PAPER_CALLBACKS.get(str(callback.get("class_path", "")).rsplit(".", 1)[-1])
-        for key, value in (settings or {}).items():
-            callback["init_args"][key] = value
+    for cls, callback in config_callbacks(config):
+        for target, settings in paper_overlay(config).callbacks.items():
+            if cls is not None and issubclass(cls, target):
+                for key, value in settings.items():
+                    callback["init_args"][key] = value
     return kept
 
 

@@ -8,84 +8,57 @@ import json
 import re
 from collections.abc import Mapping
 
+from .decisions import tolerance_problem
 from .errors import ConfigError
-
-# flag -> (help, {callback class name: its parameter}): the knobs of the method configs'
-# callbacks, settable without copying a config (a dotted --trainer.callbacks.init_args.X only
-# reaches the last callback of the list)
-METHOD_KNOBS: dict[str, tuple[str, dict[str, str]]] = {
-    "eps_high": (
-        "tolerance ε of the high subspace's pruning rule (SubspacePruning)",
-        {"SubspacePruning": "eps_high"},
-    ),
-    "eps_low": (
-        "tolerance ε of the low subspace's pruning rule (SubspacePruning)",
-        {"SubspacePruning": "eps_low"},
-    ),
-    "eps": ("tolerance ε of CSP's critic rule (CriticPruning)", {"CriticPruning": "eps"}),
-    "search_candidates": (
-        "Dirichlet candidates per subspace search (DirichletEvaluation, CriticEvaluation)",
-        {"DirichletEvaluation": "n_candidates", "CriticEvaluation": "n_candidates"},
-    ),
-    "search_batches": (
-        "held-out batches each candidate is scored on (DirichletEvaluation, CriticEvaluation)",
-        {"DirichletEvaluation": "n_batches", "CriticEvaluation": "n_batches"},
-    ),
-    "eval_episodes": (
-        "rollout episodes per task evaluation (RolloutEvaluation)",
-        {"RolloutEvaluation": "episodes"},
-    ),
-    "eval_every": (
-        "also evaluate the current task every N steps, 0: only at its end (RolloutEvaluation)",
-        {"RolloutEvaluation": "eval_every"},
-    ),
-}
 
 
 def apply_method_knobs(config) -> None:
-    """Write each knob flag given (``--eps_low 0.2``) into the init_args of the callbacks that
-    take it, then clear the flag, so the saved config and the run's fingerprint hold the
-    effective values whichever way they were set.
+    """Write each knob flag given (``--eps_low 0.2``) into the init_args of the configured
+    callbacks that take it (:class:`~hispo_pl.methods.Knob`), then clear the flag, so the
+    saved config and the run's fingerprint hold the effective values whichever way they
+    were set.
 
     Raises:
         ConfigError: a knob that no callback of the configured method takes.
     """
-    callbacks = (config.get("trainer") or {}).get("callbacks") or []
-    for flag, (_, targets) in METHOD_KNOBS.items():
+    from .methods import all_knobs, config_callbacks
+
+    callbacks = config_callbacks(config)
+    for flag, knob in all_knobs().items():
         value = config.get(flag)
         if value is None:
             continue
         hit = False
-        for callback in callbacks:
-            name = str(callback.get("class_path", "")).rsplit(".", 1)[-1]
-            if name in targets:
-                callback["init_args"][targets[name]] = value
-                hit = True
+        for cls, callback in callbacks:
+            for target, param in knob.targets.items():
+                if cls is not None and issubclass(cls, target):
+                    callback["init_args"][param] = value
+                    hit = True
         if not hit:
-            names = [str(c.get("class_path", "")).rsplit(".", 1)[-1] for c in callbacks]
+            names = [cls.__name__ for cls, _ in callbacks if cls is not None]
             raise ConfigError(
                 f"--{flag}: no callback of this method takes it (its callbacks: "
-                f"{', '.join(names) or 'none'}); it applies to {', '.join(targets)}"
+                f"{', '.join(names) or 'none'}); it applies to "
+                f"{', '.join(t.__name__ for t in knob.targets)}"
             )
         config[flag] = None
 
 
-def _config_problems(node, path: str = "") -> list[str]:
+def _config_problems(node, path: str = "", key: str = "", parent: str = "") -> list[str]:
     """Out-of-range values anywhere in a parsed configuration, by key name (model and callback
     ``init_args`` included): each problem as ``key = value: what is allowed``."""
     problems: list[str] = []
     if isinstance(node, dict):
-        for key, value in node.items():
-            problems += _config_problems(value, f"{path}.{key}" if path else str(key))
+        for name, value in node.items():
+            where = f"{path}.{name}" if path else str(name)
+            problems += _config_problems(value, where, str(name), key)
         return problems
     if isinstance(node, list):
         for i, value in enumerate(node):
-            problems += _config_problems(value, f"{path}[{i}]")
+            problems += _config_problems(value, f"{path}[{i}]", key, parent)
         return problems
     if isinstance(node, bool) or not isinstance(node, int | float):
         return problems
-    key = path.rsplit(".", 1)[-1]
-    parent = path.rsplit(".", 2)[-2] if path.count(".") >= 1 else ""
     rules = {
         "batch_size": (lambda v: v >= 1, "must be >= 1"),
         "steps_per_epoch": (lambda v: v >= 1, "must be >= 1"),
@@ -100,8 +73,8 @@ def _config_problems(node, path: str = "") -> list[str]:
     }
     if key in rules:
         ok, allowed = rules[key]
-    elif key.startswith("eps") or parent == "eps":
-        ok, allowed = (lambda v: v >= 0), "must be >= 0"
+    elif key.startswith("eps") or parent == "eps":  # tolerances: ε of every rule and test
+        ok, allowed = (lambda v: tolerance_problem(v) is None), tolerance_problem(-1)
     else:
         return problems
     if not ok(node):
@@ -109,28 +82,21 @@ def _config_problems(node, path: str = "") -> list[str]:
     return problems
 
 
-# hispo-pl's callbacks that act at a task's end before its evaluation: each changes what a task
-# acts with (records its network, folds in a penalty, prunes an anchor, sets an alpha)
-TASK_END_CALLBACKS = (
-    "TaskNetworks",
-    "WeightConsolidation",
-    "ZeroShotTransfer",
-    "AnchorExtension",
-    "DirichletEvaluation",
-    "SubspacePruning",
-    "CriticEvaluation",
-    "CriticPruning",
-)
-
-
-def callback_order_problem(class_paths: list[str]) -> str | None:
-    """Why a method's callbacks are in an order that would measure the wrong policy, or None:
-    callbacks run their hooks in list order, so a task-end callback listed after
+def callback_order_problem(config: dict) -> str | None:
+    """Why a configuration's callbacks are in an order that would measure the wrong policy, or
+    None: callbacks run their hooks in list order, so a task-end callback (one a method
+    declares, :attr:`~hispo_pl.methods.MethodSpec.task_end`) listed after
     ``RolloutEvaluation`` would change the policy after the success row was measured."""
-    names = [str(path).rsplit(".", 1)[-1] for path in class_paths]
-    if "RolloutEvaluation" not in names:
+    from .callbacks import RolloutEvaluation
+    from .methods import config_callbacks, config_spec, task_end_callbacks
+
+    classes = [cls for cls, _ in config_callbacks(config) if cls is not None]
+    evaluation = [i for i, cls in enumerate(classes) if issubclass(cls, RolloutEvaluation)]
+    if not evaluation:
         return None
-    late = [n for n in names[names.index("RolloutEvaluation") + 1 :] if n in TASK_END_CALLBACKS]
+    spec = config_spec(config)
+    task_end = (*task_end_callbacks(), *(spec.task_end if spec is not None else ()))
+    late = [c.__name__ for c in classes[evaluation[0] + 1 :] if issubclass(c, task_end)]
     if not late:
         return None
     return (
@@ -157,29 +123,18 @@ def stream_checkpoint_problem(config: dict) -> str | None:
     stream saves its own checkpoints (atomically, where a rerun resumes from them)."""
     if not (config.get("data") or {}).get("stream"):
         return None
-    callbacks = (config.get("trainer") or {}).get("callbacks") or []
-    if isinstance(callbacks, dict):
-        callbacks = [callbacks]
     from lightning.pytorch.callbacks import Checkpoint
 
-    for callback in callbacks:
-        path = str(callback.get("class_path", "")) if isinstance(callback, dict) else ""
-        cls = _imported_class(path)
-        if isinstance(cls, type) and issubclass(cls, Checkpoint):
+    from .methods import config_callbacks
+
+    for cls, _ in config_callbacks(config):
+        if cls is not None and issubclass(cls, Checkpoint):
             return (
-                f"trainer.callbacks: {path.rsplit('.', 1)[-1]} has no effect in a stream, which "
+                f"trainer.callbacks: {cls.__name__} has no effect in a stream, which "
                 "saves task_XX.ckpt after each task and task_XX.partial.ckpt every "
                 "--checkpoint_every steps in its run directory; remove it"
             )
     return None
-
-
-def _imported_class(class_path: str):
-    """The class a config names, already imported by the parser (None if it is not)."""
-    import sys
-
-    module, _, name = class_path.rpartition(".")
-    return getattr(sys.modules.get(module), name, None) if module else None
 
 
 def validate_config(config: dict) -> None:
@@ -208,9 +163,7 @@ def validate_config(config: dict) -> None:
             f"ckpt_path = {config['ckpt_path']}: a stream resumes by itself; rerun the same "
             "command without --ckpt_path (its run directory holds the finished tasks)"
         )
-    callbacks = trainer.get("callbacks") or []
-    paths = [c.get("class_path", "") for c in callbacks if isinstance(c, dict)]
-    order = callback_order_problem(paths)
+    order = callback_order_problem(config)
     if order is not None:
         problems.append(order)
     if problems:
@@ -239,6 +192,13 @@ def plain_config(config: dict) -> dict:
     return json.loads(json.dumps(config, default=str))
 
 
+def class_label(class_path: str) -> str:
+    """The last part of a class path: how a fingerprint's keys name a callback
+    (``trainer.callbacks[SubspacePruning]``), the format of every stored fingerprint; it
+    names, it never finds a class."""
+    return str(class_path).rpartition(".")[2]
+
+
 def callback_labels(class_paths: list[str]) -> list[str]:
     """How the fingerprint names each callback of a list: its class name, with ``#2``, ``#3``...
     for a later instance of the same class, so moving a callback in the list keeps its name.
@@ -250,7 +210,7 @@ def callback_labels(class_paths: list[str]) -> list[str]:
     seen: dict[str, int] = {}
     labels = []
     for path in class_paths:
-        name = str(path).rsplit(".", 1)[-1]
+        name = class_label(path)
         seen[name] = seen.get(name, 0) + 1
         labels.append(name if seen[name] == 1 else f"{name}#{seen[name]}")
     return labels

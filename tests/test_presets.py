@@ -7,7 +7,9 @@ import yaml
 from helpers import TINY_STREAM, fit_tiny_stream, tiny_stream_args
 
 from hispo_pl.cli import main
-from hispo_pl.presets import PAPER_CALLBACKS, PAPER_COMMON, apply_preset
+from hispo_pl.methods import method_spec
+from hispo_pl.modules import HiSPO
+from hispo_pl.presets import PAPER_COMMON, apply_preset
 
 
 def _get(config: dict, key: str):
@@ -30,8 +32,8 @@ def test_a_hispo_stream_runs_with_the_paper_preset(tiny_umaze, tmp_path):
     backbone = config["model"]["init_args"]["backbone"]
     assert (backbone["high_hidden"], backbone["low_hidden"]) == (64, 256)  # PointMaze
     assert config["model"]["init_args"]["anchor_init"] == "random"
-    for name, settings in PAPER_CALLBACKS.items():
-        assert settings.items() <= _callback(config, name).items()
+    for callback, settings in method_spec(HiSPO).paper.callbacks.items():
+        assert settings.items() <= _callback(config, callback.__name__).items()
 
 
 def test_the_paper_widens_hispo_only_on_antmaze_and_the_game_mazes():
@@ -49,6 +51,7 @@ def test_the_paper_widens_hispo_only_on_antmaze_and_the_game_mazes():
     assert widths("HiSPO", "videogame-1") == (70, 300, 64)
     assert widths("HiSPO", "pointmaze-2") == (64, 256, 1024)
     assert widths("NetworkPerTask", "antmaze-1") == (64, 256, 1024)
+    assert widths("CSPO", "antmaze-1") == (64, 256, 1024)  # a subclass with its own entry
 
 
 def test_an_unknown_preset_is_one_line(tmp_path, capsys):

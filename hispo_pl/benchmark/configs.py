@@ -47,19 +47,17 @@ def saved_setting(config_file: Path, key: str):
     of them that sets it); None when unset."""
     import yaml
 
-    from ..run_checks import METHOD_KNOBS
+    from ..methods import all_knobs, config_callbacks
 
-    if key not in METHOD_KNOBS:
+    knob = all_knobs().get(key)
+    if knob is None:
         return configured_value([config_file], [], key)
-    targets = METHOD_KNOBS[key][1]
     config = yaml.safe_load(Path(config_file).read_text()) or {}
-    for callback in (config.get("trainer") or {}).get("callbacks") or []:
-        if not isinstance(callback, dict):
-            continue
-        param = targets.get(str(callback.get("class_path", "")).rsplit(".", 1)[-1])
-        value = (callback.get("init_args") or {}).get(param) if param else None
-        if value is not None:
-            return value
+    for cls, callback in config_callbacks(config):
+        for target, param in knob.targets.items():
+            value = (callback.get("init_args") or {}).get(param)
+            if cls is not None and issubclass(cls, target) and value is not None:
+                return value
     return None
 
 

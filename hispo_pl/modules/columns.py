@@ -144,6 +144,28 @@ class NetworkPerTask(GoalConditionedBC):
         """Record the network task ``task`` acts with from now on."""
         self.task_network = record_task(self.task_network, task, len(self.nets) - 1)
 
+    @staticmethod
+    def keep_last_checkpoint(checkpoint: dict) -> dict:
+        """A keep-all checkpoint after task ``i`` as the keep-last run of the same training
+        writes it: its newest network alone as ``nets.0``, every finished task mapped to it,
+        ``keep: last``; the rest (optimiser, loops, callbacks) is the same, as only the newest
+        network trains."""
+        state = checkpoint["state_dict"]
+        newest = max(int(k.split(".")[1]) for k in state if k.startswith("nets."))
+        prefix = f"nets.{newest}."
+        out_state = {}
+        for key, value in state.items():
+            if key.startswith(prefix):
+                out_state["nets.0." + key[len(prefix) :]] = value
+            elif key == "task_network":
+                out_state[key] = torch.zeros_like(value)
+            elif not key.startswith("nets."):
+                out_state[key] = value
+        out = dict(checkpoint)
+        out["state_dict"] = out_state
+        out["hyper_parameters"] = {**checkpoint["hyper_parameters"], "keep": "last"}
+        return out
+
     @property
     def n_tasks(self) -> int:
         """Tasks finished (each has an entry in :attr:`task_network`)."""
