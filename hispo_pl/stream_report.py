@@ -11,7 +11,6 @@ Custom Scalars layout go to the loggers that can show them (TensorBoard). Succes
 
 from __future__ import annotations
 
-import re
 from collections.abc import Sequence
 
 from lightning.pytorch.loggers import Logger, TensorBoardLogger
@@ -118,38 +117,64 @@ def plain_hparams(settings: dict) -> dict[str, float | int | str | bool]:
     }
 
 
-# (HParams name, pattern of the flat setting it reads): the choices that tell runs apart
+# (HParams name, the flat setting it reads): the choices that tell runs apart
 CHOSEN_SETTINGS = (
-    ("seed", r"seed_everything"),
-    ("preset", r"preset"),
-    ("steps_per_task", r"trainer\.max_steps"),
-    ("batch_size", r"data\.batch_size"),
-    ("lr", r"model\.init_args\.optim\.lr"),
-    ("episodes", r"trainer\.callbacks\[[^]]+\]\.init_args\.episodes"),
+    ("seed", "seed_everything"),
+    ("preset", "preset"),
+    ("steps_per_task", "trainer.max_steps"),
+    ("batch_size", "data.batch_size"),
+    ("lr", "model.init_args.optim.lr"),
 )
-WIDTH = re.compile(r"model\.init_args\.(?:backbone\.)?(\w*(?:hidden|width)\w*)")
+
+
+def nested_settings(settings: dict) -> dict:
+    """A run's flat settings (:func:`~hispo_pl.run_checks.run_fingerprint`) nested again as
+    a configuration, its callbacks a list (in the order of their keys)."""
+    config: dict = {}
+    callbacks: dict[str, dict] = {}
+    head = "trainer.callbacks["
+    for key, value in settings.items():
+        node, rest = config, key
+        if key.startswith(head) and "]." in key:
+            label, rest = key[len(head) :].split("].", 1)
+            node = callbacks.setdefault(label, {})
+        *parents, last = rest.split(".")
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[last] = value
+    if callbacks:
+        config.setdefault("trainer", {})["callbacks"] = list(callbacks.values())
+    return config
 
 
 def chosen_hparams(settings: dict, decisions: Sequence[Decision] = ()) -> dict:
-    """The HParams tab's columns: the settings a user chooses between runs (method, stream,
-    seed, steps per task, batch, learning rate, widths, evaluation episodes) and each
-    subspace's pruning tolerance as applied (the decisions' ``eps``, so a family default shows
-    its value, not ``None``). Lightning's defaults and positional callback keys stay out;
-    the whole configuration is in the run directory's ``task_XX.config.yaml``."""
+    """The HParams tab's columns: the settings a user chooses between runs (the method by its
+    display name, stream, seed, steps per task, batch, learning rate, widths, evaluation
+    episodes) and each subspace's pruning tolerance as applied (the decisions' ``eps``, so a
+    family default shows its value, not ``None``). Lightning's defaults stay out; the whole
+    configuration is in the run directory's ``task_XX.config.yaml``."""
+    from .callbacks import RolloutEvaluation
+    from .methods import config_callbacks, method_name
+
+    config = nested_settings(settings)
     chosen: dict = {}
-    if settings.get("model.class_path"):
-        chosen["method"] = str(settings["model.class_path"]).rsplit(".", 1)[-1]
+    name = method_name(config)
+    if name is not None:
+        chosen["method"] = name
     stream = settings.get("data.stream")
     if stream:
         chosen["stream"] = stream if isinstance(stream, str) else " -> ".join(map(str, stream))
-    for name, pattern in CHOSEN_SETTINGS:
-        values = [v for k, v in settings.items() if re.fullmatch(pattern, k) and v is not None]
-        if values:
-            chosen[name] = values[0]
-    for key, value in settings.items():
-        width = WIDTH.fullmatch(key)
-        if width and value is not None:
-            chosen[width.group(1)] = value
+    for column, key in CHOSEN_SETTINGS:
+        if settings.get(key) is not None:
+            chosen[column] = settings[key]
+    for cls, callback in config_callbacks(config):
+        episodes = (callback.get("init_args") or {}).get("episodes")
+        if cls is not None and issubclass(cls, RolloutEvaluation) and episodes is not None:
+            chosen.setdefault("episodes", episodes)
+    model = (config.get("model") or {}).get("init_args") or {}
+    for key, value in {**model, **(model.get("backbone") or {})}.items():
+        if ("hidden" in key or "width" in key) and value is not None:
+            chosen[key] = value
     for d in decisions:
         if d.tolerance is not None:
             chosen[f"eps_{d.subspace}"] = d.tolerance

@@ -97,7 +97,8 @@ def test_keep_last_methods_derive_from_the_keep_all_config_that_differs_only_in_
     configs = _method_configs()
     pairs = {"sc1": "scn", "ft1": "ftn", "bc-sc1": "bc-scn", "bc-ft1": "bc-ftn"}
     assert derive.keep_last_siblings(configs) == pairs  # FRZ keeps the last but trains once
-    changed = derive.with_keep(configs["scn"], "all")
+    changed = derive.keep_all_twin(configs["sc1"])
+    assert changed == configs["scn"]
     changed["trainer"]["callbacks"][1]["init_args"]["episodes"] = 10
     assert derive.keep_last_siblings({"sc1": configs["sc1"], "scn": changed}) == {}
 

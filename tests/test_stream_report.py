@@ -142,10 +142,12 @@ FINGERPRINT = {  # a stream run's flat settings, as the loop stores them
     "trainer.accelerator": "cpu",
     "trainer.inference_mode": True,
     "trainer.max_steps": 3000,
-    "trainer.callbacks[1].class_path": "hispo_pl.callbacks.DirichletEvaluation",
-    "trainer.callbacks[1].init_args.n_candidates": 1024,
-    "trainer.callbacks[2].init_args.eps_low": None,
-    "trainer.callbacks[3].init_args.episodes": 100,
+    "trainer.callbacks[DirichletEvaluation].class_path": "hispo_pl.callbacks.DirichletEvaluation",
+    "trainer.callbacks[DirichletEvaluation].init_args.n_candidates": 1024,
+    "trainer.callbacks[SubspacePruning].class_path": "hispo_pl.callbacks.SubspacePruning",
+    "trainer.callbacks[SubspacePruning].init_args.eps_low": None,
+    "trainer.callbacks[RolloutEvaluation].class_path": "hispo_pl.callbacks.RolloutEvaluation",
+    "trainer.callbacks[RolloutEvaluation].init_args.episodes": 100,
     "model.class_path": "hispo_pl.modules.HiSPO",
     "model.init_args.backbone.high_hidden": 64,
     "model.init_args.backbone.low_hidden": 256,
@@ -179,6 +181,20 @@ def test_hparams_hold_the_settings_a_user_chose_by_name():
     }
     zero_shot = [ZeroShotDecision(task=1, subspace="low", decision="zero-shot", eps={"low": 1.0})]
     assert "eps_low" not in chosen_hparams(FINGERPRINT, zero_shot)
+
+
+def test_hparams_name_a_method_as_its_registry_entry_does():
+    """One class, several methods: the name comes from the method's entry and its settings."""
+    networks = {
+        "model.class_path": "hispo_pl.modules.NetworkPerTask",
+        "model.init_args.init": "previous",
+        "model.init_args.keep": "last",
+        "trainer.callbacks[TaskNetworks].class_path": "hispo_pl.callbacks.TaskNetworks",
+        "trainer.callbacks[TaskNetworks].init_args.train": "all",
+    }
+    assert chosen_hparams(networks)["method"] == "FT1"
+    frozen = {**networks, "trainer.callbacks[TaskNetworks].init_args.train": "first"}
+    assert chosen_hparams(frozen)["method"] == "FRZ"
 
 
 def test_custom_scalars_give_each_task_its_chart_and_the_rule_as_a_ratio():

@@ -1,35 +1,34 @@
 """A keep-last run (SC1, FT1) derived from its keep-all sibling's run (SCN, FTN) instead of
 trained a second time.
 
-:class:`~hispo_pl.modules.NetworkPerTask` trains the same whether it keeps every task's
-network or only the newest (the same random draws, the same weights, the same optimiser
-state: ``tests/test_derive.py`` pins it against real runs). So the keep-last run follows from
-the keep-all one: after task ``i`` its one network is the sibling's newest, and its row of R
-differs only where a finished task ``j < i`` is evaluated (keep-last acts with network ``i``,
-keep-all with network ``j``). Those entries are measured again through the evaluation a
-task's end runs (:meth:`~hispo_pl.callbacks.RolloutEvaluation.evaluate_task`, with the run's
-own episodes and seed); every other entry, the decisions and the datasets are the sibling's.
-A derived run's wall time is that evaluation's, not the sibling's training.
+A method whose registry entry has a keep-last variant
+(:attr:`~hispo_pl.methods.MethodSpec.keep_last`: NetworkPerTask with ``keep: last``) trains the
+same as that sibling (the same random draws, the same weights, the same optimiser state:
+``tests/test_derive.py`` pins it against real runs). So the keep-last run follows from the
+keep-all one: after task ``i`` its checkpoint is the sibling's as the method rewrites it
+(:attr:`~hispo_pl.methods.KeepLast.checkpoint`), and its row of R differs only
+where a finished task ``j < i`` is evaluated (keep-last acts with network ``i``, keep-all with
+network ``j``). Those entries are measured again through the evaluation a task's end runs
+(:meth:`~hispo_pl.callbacks.RolloutEvaluation.evaluate_task`, with the run's own episodes and
+seed); every other entry, the decisions and the datasets are the sibling's. The derived
+``progress.json`` is then finished by the loop itself, as a rerun of a finished stream
+(:class:`~hispo_pl.loop.ContinualLoop`: its fingerprint check, its results). A derived run's
+wall time is that evaluation's, not the sibling's training.
 
     derive_run("runs/scn/seed0", "runs/sc1/seed0")  # writes the keep-last run's files
 """
 
 from __future__ import annotations
 
-import copy
-import dataclasses
-import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TypeVar
 
 from ..errors import RunDirError
-from ..results import StreamResults
+from ..methods import KeepLast, config_callbacks, config_spec
+from ..results import Progress, StreamResults
 from ..rundir import RunDir
-
-NETWORK_PER_TASK = "hispo_pl.modules.NetworkPerTask"
-ROLLOUT_EVALUATION = "hispo_pl.callbacks.RolloutEvaluation"
 
 C = TypeVar("C")  # a grid cell: a frozen dataclass with name, stream, label, method, seed
 
@@ -37,38 +36,30 @@ C = TypeVar("C")  # a grid cell: a frozen dataclass with name, stream, label, me
 # --- which methods, which cells: pure decisions ----------------------------------------------
 
 
-def _keep(config: Mapping) -> str | None:
-    """``keep`` of a NetworkPerTask method config, None for any other method."""
-    model = config.get("model") or {}
-    if not isinstance(model, Mapping) or model.get("class_path") != NETWORK_PER_TASK:
-        return None
-    return (model.get("init_args") or {}).get("keep", "all")
-
-
-def with_keep(config: Mapping, keep: str) -> dict:
-    """A copy of a method (or run) config whose NetworkPerTask keeps ``keep``."""
-    out = copy.deepcopy(dict(config))
-    out["model"]["init_args"]["keep"] = keep
-    return out
+def keep_all_twin(config: Mapping) -> dict | None:
+    """The configuration of the keep-all run that trains what ``config`` (a method or run
+    configuration, parsed YAML) trains, when its method keeps only its newest network
+    (:attr:`~hispo_pl.methods.KeepLast.sibling`); None for any other."""
+    spec = config_spec(config)
+    keep_last = spec.keep_last if spec is not None else None
+    return keep_last.sibling(config) if keep_last is not None else None
 
 
 def keep_last_siblings(method_configs: Mapping[str, Mapping]) -> dict[str, str]:
     """``{keep-last method: its keep-all sibling}``: method configs (parsed YAML, by name)
-    that are NetworkPerTask and equal but for ``keep``, so the sibling's run trains both.
+    whose :func:`keep_all_twin` is another of them, so the sibling's run trains both.
 
     Example:
-        >>> last = {"model": {"class_path": NETWORK_PER_TASK, "init_args": {"keep": "last"}}}
-        >>> keep_last_siblings({"sc1": last, "scn": with_keep(last, "all")})
+        >>> last = {"model": {"class_path": "hispo_pl.modules.NetworkPerTask",
+        ...                   "init_args": {"keep": "last"}}}
+        >>> keep_last_siblings({"sc1": last, "scn": keep_all_twin(last)})
         {'sc1': 'scn'}
     """
     out = {}
     for name, config in method_configs.items():
-        if _keep(config) != "last":
-            continue
-        twin = with_keep(config, "all")
-        found = [m for m, c in method_configs.items() if m != name and _keep(c) == "all"]
-        found = [m for m in found if dict(method_configs[m]) == twin]
-        if found:
+        twin = keep_all_twin(config)
+        found = [m for m, c in method_configs.items() if m != name and dict(c) == twin]
+        if twin is not None and found:
             out[name] = found[0]
     return out
 
@@ -114,29 +105,6 @@ def derivable_run(run_dir: Path, committed: Path | None = None) -> bool:
 # --- the derived files -----------------------------------------------------------------------
 
 
-def keep_last_checkpoint(checkpoint: dict) -> dict:
-    """A keep-all checkpoint after task ``i`` as the keep-last run writes it: its newest
-    network alone as ``nets.0``, every finished task mapped to it, ``keep: last``; the rest
-    (optimiser, loops, callbacks) is the same, as only the newest network trains."""
-    import torch
-
-    state = checkpoint["state_dict"]
-    newest = max(int(k.split(".")[1]) for k in state if k.startswith("nets."))
-    prefix = f"nets.{newest}."
-    out_state = {}
-    for key, value in state.items():
-        if key.startswith(prefix):
-            out_state["nets.0." + key[len(prefix) :]] = value
-        elif key == "task_network":
-            out_state[key] = torch.zeros_like(value)
-        elif not key.startswith("nets."):
-            out_state[key] = value
-    out = dict(checkpoint)
-    out["state_dict"] = out_state
-    out["hyper_parameters"] = {**checkpoint["hyper_parameters"], "keep": "last"}
-    return out
-
-
 def rewritten_config_text(text: str, run_dir: Path, change: Callable[[dict], None]) -> str:
     """A run's ``config.yaml`` (or ``task_XX.config.yaml``) as another run in ``run_dir``
     writes it: ``change`` applied to the parsed configuration and the logger's directory
@@ -167,89 +135,129 @@ def rewritten_config_text(text: str, run_dir: Path, change: Callable[[dict], Non
     return header + yaml.safe_dump(config, sort_keys=False)
 
 
+def _keep_last(text: str, run_dir: Path) -> KeepLast:
+    """How the keep-last sibling of the keep-all run whose configuration is ``text`` follows
+    from it (its method's registry entry).
+
+    Raises:
+        RunDirError: the run's method has no keep-last variant, or the run is that variant."""
+    import yaml
+
+    config = yaml.safe_load(text) or {}
+    spec = config_spec(config)
+    if spec is None or spec.keep_last is None:
+        raise RunDirError(f"{run_dir}: its method has no keep-last variant to derive")
+    if spec.keep_last.sibling(config) is not None:
+        raise RunDirError(f"{run_dir}: derives only from a run that keeps all (keep: all)")
+    return spec.keep_last
+
+
 def keep_last_config_text(text: str, run_dir: Path) -> str:
     """A keep-all run's ``config.yaml`` (or ``task_XX.config.yaml``) as the keep-last run in
-    ``run_dir`` writes it: ``keep: last`` and the logger's directory
+    ``run_dir`` writes it: the keep-last configuration of its method
+    (:attr:`~hispo_pl.methods.KeepLast.from_sibling`) and the logger's directory
     (:func:`rewritten_config_text`).
 
     Raises:
-        RunDirError: not a NetworkPerTask run that keeps all, or YAML this cannot rewrite
-            without changing more than those keys."""
-    import yaml
-
-    if _keep(yaml.safe_load(text) or {}) != "all":
-        raise RunDirError(f"{run_dir}: derives only from a {NETWORK_PER_TASK} run with keep: all")
-
-    def change(config: dict) -> None:
-        config["model"]["init_args"]["keep"] = "last"
-
-    return rewritten_config_text(text, run_dir, change)
+        RunDirError: not a run that keeps all of a method with a keep-last variant, or YAML
+            this cannot rewrite without changing more than those keys."""
+    return rewritten_config_text(text, run_dir, _keep_last(text, run_dir).from_sibling)
 
 
 def _rollout_evaluation(config: dict):
     """The run's end-of-task evaluation callback, built from its saved arguments."""
     from ..callbacks import RolloutEvaluation
 
-    for callback in (config.get("trainer") or {}).get("callbacks") or []:
-        if isinstance(callback, dict) and callback.get("class_path") == ROLLOUT_EVALUATION:
-            return RolloutEvaluation(**(callback.get("init_args") or {}))
-    raise RunDirError(f"the run has no {ROLLOUT_EVALUATION} callback to measure R with")
+    for cls, callback in config_callbacks(config):
+        if cls is not None and issubclass(cls, RolloutEvaluation):
+            return cls(**(callback.get("init_args") or {}))
+    raise RunDirError("the run has no RolloutEvaluation callback to measure R with")
+
+
+def _nothing_to_train(_):
+    raise RunDirError("a derived run has every task finished; nothing trains")
 
 
 def derive_run(source: str | Path, target: str | Path, record: dict | None = None) -> StreamResults:
-    """:func:`write_derived_run` holding ``target``'s run lock, as a run holds it: two
-    launches that derive the same run at once do not write into one folder together.
+    """Write into ``target`` the keep-last run that the finished keep-all run ``source``
+    stands for: :func:`write_derived_tasks` holding ``target``'s run lock, as a run holds it
+    (two launches that derive the same run at once do not write into one folder together),
+    then the results as the loop writes them on a rerun of a finished stream. Returns them.
 
     Raises:
-        RunDirError: another process holds ``target``, or :func:`write_derived_run`'s."""
+        RunDirError: another process holds ``target``, or :func:`write_derived_tasks`'s."""
+    import yaml
+
+    from ..cli_stream import scratch_diagonal
+    from ..errors import ConfigError
+    from ..loop import ContinualLoop
+    from ..metrics import module_bytes
+    from ..modules import GoalConditionedBC
     from ..resume import RunDirLock
 
-    Path(target).mkdir(parents=True, exist_ok=True)
+    out = RunDir(target)
+    out.path.mkdir(parents=True, exist_ok=True)
     with RunDirLock(target):
-        return write_derived_run(source, target, record)
+        progress = write_derived_tasks(source, target, record)
+    module = GoalConditionedBC.from_checkpoint_file(str(out.checkpoint(progress.done - 1)))
+    config = yaml.safe_load(out.config_file.read_text()) or {}
+    scratch = None
+    if config.get("scratch_results"):
+        try:
+            scratch = scratch_diagonal(Path(config["scratch_results"]), len(progress.stream))
+        except ConfigError as err:
+            raise RunDirError(f"{out}: the source's FWT reference: {err}") from None
+    reference = module_bytes(module.reference_model())
+    no_task = _nothing_to_train
+    loop = ContinualLoop(
+        progress.stream, module, no_task, no_task, out, reference, scratch,
+        fingerprint=progress.fingerprint,
+    )  # fmt: skip
+    loop.run()
+    return out.stream_results()
 
 
-def write_derived_run(
+def write_derived_tasks(
     source: str | Path, target: str | Path, record: dict | None = None
-) -> StreamResults:
-    """Write into ``target`` the keep-last run that the finished keep-all run ``source``
-    stands for: its checkpoints, ``config.yaml`` and ``task_XX.config.yaml``,
-    ``progress.json``, ``results.json`` (R re-measured below the diagonal, PER, BWT, MEM and
-    the table from it, the rest the source's), ``decisions.jsonl`` if the source has one, and
-    ``run.json`` (``record``, else the source's without its method and command) naming
-    ``derived_from``.
-    Returns the results.
+) -> Progress:
+    """Write into ``target`` every task of the keep-last run that the finished keep-all run
+    ``source`` stands for: its checkpoints, ``config.yaml`` and ``task_XX.config.yaml``,
+    ``progress.json`` (R re-measured below the diagonal, the fingerprint of the keep-last
+    configuration), ``decisions.jsonl`` if the source has one, and ``run.json`` (``record``,
+    else the source's without its method and command) naming ``derived_from``. Returns the
+    progress; :func:`derive_run` has the loop write the results from it.
 
     Raises:
-        RunDirError: ``source`` is not a finished keep-all NetworkPerTask run with every
-            task's checkpoint."""
+        RunDirError: ``source`` is not a finished keep-all run with every task's checkpoint
+            of a method that has a keep-last sibling."""
     import torch
     import yaml
 
     from ..io import atomic_save, atomic_write_text
-    from ..metrics import continual_metrics, memory_ratio, module_bytes, results_row_table
+    from ..metrics import memory_ratio, module_bytes
     from ..modules import GoalConditionedBC
     from ..modules.hbc import read_checkpoint
+    from ..run_checks import run_fingerprint
     from ..tasks import parse_task
 
     src, out = RunDir(source), RunDir(target)
     if not derivable_run(src.path):
         raise RunDirError(f"{src}: no finished run with a checkpoint for every task to derive from")
     results, progress = src.stream_results(), src.read_progress()
+    keep_last = _keep_last(src.config_file.read_text(), src.path)
     config_text = keep_last_config_text(src.config_file.read_text(), out.path)
     config = yaml.safe_load(config_text)
     evaluation = _rollout_evaluation(config)
     stream = [parse_task(t) for t in results.stream]
-    out.path.mkdir(parents=True, exist_ok=True)
     R = [list(row) for row in results.R]
-    wall, phases, memory, module = [], [], [], None
+    wall, phases, memory, settings = [], [], [], None
     threads = torch.get_num_threads()
     if int(config.get("num_threads") or 0) > 0:
         torch.set_num_threads(int(config["num_threads"]))  # as the run evaluated
     try:
         for i in range(len(stream)):
             start = time.perf_counter()
-            checkpoint = keep_last_checkpoint(read_checkpoint(src.checkpoint(i)))
+            checkpoint = keep_last.checkpoint(read_checkpoint(src.checkpoint(i)))
             atomic_save(out.checkpoint(i), lambda tmp, c=checkpoint: torch.save(c, tmp))
             module = GoalConditionedBC.from_checkpoint_file(str(out.checkpoint(i)))
             for j in range(i):  # a finished task, now acting with the newest network
@@ -262,37 +270,24 @@ def write_derived_run(
             if src.task_config(i).exists():
                 text = keep_last_config_text(src.task_config(i).read_text(), out.path)
                 out.write_task_config(i, text)
+                settings = yaml.safe_load(text)  # the settings as the loop took them
     finally:
         torch.set_num_threads(threads)
-    matrix = [[math.nan if v is None else v for v in row] for row in R]
-    metrics = {**results.metrics, **continual_metrics(matrix, None)}  # FWT: the same diagonal
-    stored = module_bytes(module)
-    if "MEM" in metrics:
-        metrics["MEM"] = memory_ratio(stored, module_bytes(module.reference_model()))
-    derived = dataclasses.replace(
-        results,
-        R=R,
+    if settings is None:
+        settings = {k: v for k, v in config.items() if k != "config"}
+    kept = progress if progress is not None else Progress(stream=list(results.stream))
+    derived = Progress(
+        stream=list(results.stream),
+        rows=R,
         wall_time_s=wall,
         phase_time_s=phases,
-        metrics=metrics,
-        stored_bytes=stored,
-        table=results_row_table(matrix),
-        mem_per_task=memory if results.mem_per_task is not None else None,
+        datasets=list(kept.datasets) or list(results.datasets or []),
+        fingerprint=run_fingerprint(settings) if kept.fingerprint is not None else None,
+        # measured as the source's run measures it
+        mem_per_task=memory if kept.mem_per_task is not None else None,
+        extra=dict(kept.extra),
     )
-    if progress is not None:
-        fingerprint = progress.fingerprint
-        if fingerprint is not None:  # flat settings: only keep differs
-            fingerprint = {**fingerprint, "model.init_args.keep": "last"}
-        progress = dataclasses.replace(
-            progress,
-            rows=R,
-            wall_time_s=wall,
-            phase_time_s=phases,
-            # measured as the source's run measures it
-            mem_per_task=memory if progress.mem_per_task is not None else None,
-            fingerprint=fingerprint,
-        )
-        out.write_progress(progress)
+    out.write_progress(derived)
     decisions = src.decisions()
     if decisions:  # the task-end decisions of identical training
         out.decisions_file.unlink(missing_ok=True)
@@ -302,5 +297,4 @@ def write_derived_run(
         mine = ("method", "argv", "command")
         record = {k: v for k, v in src.read_run_record().items() if k not in mine}
     out.write_run_record({"derived_from": str(src), **record})
-    out.write_results(derived)
     return derived
