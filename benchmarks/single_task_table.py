@@ -46,6 +46,9 @@ from hispo_pl.benchmark import (
 from hispo_pl.rundir import RunDir
 from hispo_pl.tasks import FAMILIES, parse_task
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # a script of the checkout: its lab/
+from lab.provenance import checkout_commit  # noqa: E402
+
 
 @dataclass(frozen=True)
 class Setting:
@@ -216,7 +219,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     if not args.report_only:
         runs = plan_runs(settings, tasks, seeds, args.out, extra)
-        todo = pending_runs(runs, stream=None, made_on=provenance())
+        todo = pending_runs(runs, stream=None, made_on=provenance() | checkout_commit())
         report = progress_lines(len(runs), len(runs) - len(todo))
         run_local(todo, args.workers, report, run_env(1))
     results = collect_results(args.out, settings, tasks)

@@ -6,20 +6,21 @@ from __future__ import annotations
 
 import pytest
 
-from hispo_pl.benchmark import claims
+from lab import claim_rules as rules
+from lab import claims
 
 
-def _stats(per: float, low: float, high: float, mem: float = 1.0) -> claims.Stats:
-    stats = claims.Stats(((per,),), per, 0.0, 0.0, mem, 1)
+def _stats(per: float, low: float, high: float, mem: float = 1.0) -> rules.Stats:
+    stats = rules.Stats(((per,),), per, 0.0, 0.0, mem, 1)
     stats.__dict__["per_iqm"] = (per, low, high)  # the interval as drawn, without a bootstrap
     return stats
 
 
 def test_interval_rules():
     a, b, c = _stats(99, 98.5, 99.5), _stats(98.8, 98.0, 98.9), _stats(97, 96.5, 97.5)
-    assert claims.overlaps(a, b) and claims.overlaps(b, a)
-    assert not claims.overlaps(a, c) and claims.below(c, a) and not claims.below(a, c)
-    assert claims.verdict(True) == "holds" and claims.verdict(False) == "does not hold"
+    assert rules.overlaps(a, b) and rules.overlaps(b, a)
+    assert not rules.overlaps(a, c) and rules.below(c, a) and not rules.below(a, c)
+    assert rules.verdict(True) == "holds" and rules.verdict(False) == "does not hold"
 
 
 class _Empty:
@@ -44,7 +45,7 @@ def test_the_page_says_not_tested_for_a_protocol_without_runs(tmp_path):
 
 
 def test_growth_order_names_the_polynomial_a_memory_curve_follows():
-    assert claims.growth_order([1.0, 2.0, 3.0, 4.0]) == 1
-    assert claims.growth_order([1.0, 2.96, 5.88, 9.77, 14.61]) == -1  # rounded: not exact
-    assert claims.growth_order([k * k + 3 * k + 1 for k in range(8)]) == 2
-    assert claims.growth_order([2.0**k for k in range(8)]) == -1
+    assert rules.growth_order([1.0, 2.0, 3.0, 4.0]) == 1
+    assert rules.growth_order([1.0, 2.96, 5.88, 9.77, 14.61]) == -1  # rounded: not exact
+    assert rules.growth_order([k * k + 3 * k + 1 for k in range(8)]) == 2
+    assert rules.growth_order([2.0**k for k in range(8)]) == -1

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from hispo_pl.benchmark import embed_reports
 from hispo_pl.cli import main
+from lab.embed import EMBED_BEGIN, embed_reports
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
@@ -53,7 +53,7 @@ def test_relative_links_resolve(page):
         assert path.exists(), f"{page.relative_to(ROOT)} links to a missing {target}"
 
 
-REPORT_PAGES = [p for p in PAGES if "<!-- report: " in p.read_text()]
+REPORT_PAGES = [p for p in PAGES if EMBED_BEGIN in p.read_text()]
 
 
 def test_results_page_embeds_reports():
@@ -67,8 +67,7 @@ def test_embedded_reports_equal_their_rebuilt_run_files(page):
     retrained."""
     name = page.relative_to(ROOT)
     assert embed_reports(page, ROOT) == page.read_text(), (
-        f"{name} differs from its run files: rebuild it with\n"
-        f"  hispo-pl benchmark --report-only --docs {name}"
+        f"{name} differs from its run files: rebuild it with\n  python -m lab rebuild-docs {name}"
     )
 
 

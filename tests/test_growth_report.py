@@ -21,8 +21,8 @@ from hispo_pl.benchmark.growth_report import (
     growth_markdown,
     per_after_each_task,
 )
-from hispo_pl.benchmark.report import EMBED_BEGIN, EMBED_END, embed_reports
 from hispo_pl.rundir import RunDir
+from lab.embed import EMBED_BEGIN, EMBED_END, embed_reports
 
 ROOT = Path(__file__).resolve().parents[1]
 STREAM = "random-pointmaze-4@0"  # the folder the runs are committed under

@@ -9,7 +9,6 @@ import json
 import pytest
 from helpers import load_benchmark
 
-from hispo_pl.benchmark import embed_reports
 from hispo_pl.benchmark.curves import (
     CurveStudy,
     MeanCurve,
@@ -19,6 +18,7 @@ from hispo_pl.benchmark.curves import (
     mean_curve,
 )
 from hispo_pl.rundir import RunDir
+from lab.embed import embed_reports
 
 study_script = load_benchmark("learning_curves")
 

@@ -712,26 +712,6 @@ def test_a_corrupt_benchmark_json_is_one_line_and_nothing_is_written(tmp_path, c
     assert not (tmp_path / "out" / "table.md").exists() and not (tmp_path / "dest").exists()
 
 
-@pytest.mark.parametrize(
-    "embed, said",
-    [
-        ("<!-- report: {tmp}/none/table.md -->\nold\n<!-- end report -->", "no runs"),
-        ("<!-- report: {tmp}/x/runs/table.md -->\nold\n", "has no closing"),
-        ("<!-- report: {tmp}/x/runs/nothing.md -->\nold\n<!-- end report -->", "nothing.md"),
-    ],
-    ids=["no-runs", "not-closed", "no-such-report"],
-)
-def test_a_docs_page_whose_embed_cannot_be_built_is_one_line(tmp_path, capsys, embed, said):
-    _finished_run(tmp_path / "x", "scn", 0, PM1_TASKS)  # x/runs: an exported stream's layout
-    page = tmp_path / "page.md"
-    page.write_text("# page\n" + embed.replace("{tmp}", str(tmp_path)) + "\n")
-    before = page.read_text()
-    assert main(["benchmark", "--report-only", "--docs", str(page)]) == 2
-    err = capsys.readouterr().err.strip()
-    assert said in err and str(page) in err and len(err.splitlines()) == 1, err
-    assert page.read_text() == before
-
-
 @pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs /proc, where no folder is made")
 @pytest.mark.parametrize(
     "argv",
@@ -837,22 +817,6 @@ def test_the_grids_export_replaces_a_linked_config_and_refuses_a_linked_source(t
     (run / "decisions.jsonl").symlink_to(tmp_path / "victim")
     with pytest.raises(LinkedFileError, match="decisions.jsonl is a symbolic link"):
         export_cell(run, cell, root)
-
-
-def test_a_manifest_replaces_its_link_and_escapes_what_run_json_says(tmp_path):
-    from hispo_pl.benchmark.manifest import MANIFEST, write_manifests
-
-    folder = tmp_path / "pointmaze-1"
-    run = _finished_run(folder, "scn", 0, PM1_TASKS)
-    crafted = ["-m", "hispo_pl.cli", "fit", "x |\n| injected | row | here | `code` |\n"]
-    record = {"argv": crafted, "commit": "abc|def", "machine": {"platform": "a\nb"}}
-    (run / "run.json").write_text(json.dumps(record))
-    victim = _link_to_victim(folder / MANIFEST, tmp_path / "victim")
-    write_manifests(tmp_path, commit_of=lambda path: None)
-    assert victim.read_text() == "victim\n" and not (folder / MANIFEST).is_symlink()
-    rows = [ln for ln in (folder / MANIFEST).read_text().splitlines() if ln.startswith("|")]
-    assert len(rows) == 3 and "injected" in rows[2]  # the header, its rule, the run
-    assert rows[2].replace("\\|", "").count("|") == 5 and "\\`code\\`" in rows[2]
 
 
 def test_run_files_appended_or_locked_replace_a_link(tmp_path):

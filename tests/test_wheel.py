@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -84,6 +85,18 @@ def test_the_wheel_carries_its_licence_links_and_configs(wheel_venv):
     assert "hispo_pl/callbacks/subspace.py" in names
     assert "hispo_pl/notebooks/anchor_weights.ipynb" in names  # python -m hispo_pl.notebook
     assert not [n for n in names if n.endswith((".c", ".so"))]  # nothing to compile or load
+
+
+def test_the_wheel_carries_none_of_the_repositorys_own_tools(wheel_venv):
+    """The repository's tools (``lab/``: the paper's figures, the docs pages, the manifests,
+    the checkout's commit) stay out of the product: no code in the wheel names a ``docs``
+    path or runs ``git``."""
+    wheel, _ = wheel_venv
+    with zipfile.ZipFile(wheel) as z:
+        code = {n: z.read(n).decode() for n in z.namelist() if n.endswith(".py")}
+    assert code and not [n for n in code if not n.startswith("hispo_pl/")]
+    assert not [n for n, text in code.items() if re.search(r"[\"']docs[/\"']", text)]
+    assert not [n for n, text in code.items() if re.search(r"[\"']git[\"']|git log", text)]
 
 
 def test_a_user_outside_the_checkout_copies_plans_and_fits(wheel_venv, tiny_umaze, tmp_path):

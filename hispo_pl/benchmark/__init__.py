@@ -54,9 +54,6 @@ from .records import (
     scratch_method_for,
 )
 from .report import (
-    EMBED_BEGIN,
-    EMBED_END,
-    embed_reports,
     plot_perf_vs_memory,
     unfinished_markdown,
     unfinished_runs,
@@ -71,8 +68,6 @@ from .tables import (
 )
 
 __all__ = [
-    "EMBED_BEGIN",
-    "EMBED_END",
     "FIT_MODULE",
     "MethodRow",
     "PLAN_FILE",
@@ -89,7 +84,6 @@ __all__ = [
     "datasets_needed",
     "critic_markdown",
     "decisions_markdown",
-    "embed_reports",
     "execute_run",
     "export_runs",
     "finished_run_dirs",

@@ -17,7 +17,7 @@ from .configs import datasets_needed, prepare_datasets
 from .launch import Reporter, run_env, run_local, run_ray
 from .parser import build_parser, cpu_count
 from .records import export_runs, refuse_foreign_export
-from .report import embed_reports, write_report
+from .report import write_report
 
 
 def _split_extra(argv: Sequence[str]) -> tuple[list[str], list[str]]:
@@ -67,7 +67,7 @@ def _grid_main(parser, args, extra: list[str]) -> int:
     if args.stream:
         parser.error("--grid and --stream: a grid names its own streams (--part selects some)")
     if not args.export:
-        parser.error("--grid needs --export ROOT: where its runs are committed (docs/results)")
+        parser.error("--grid needs --export ROOT: where its runs are kept (their small files)")
     if not args.report_only and not args.out:
         parser.error("--grid needs --out WORK: where its runs train (checkpoints, logs)")
     config_dir = Path(args.config_dir) if args.config_dir else config_root()
@@ -127,31 +127,14 @@ def _grid_main(parser, args, extra: list[str]) -> int:
     return 1 if failed else 0
 
 
-def _rebuild_pages(pages: Sequence[str]) -> None:
-    for page in pages:
-        atomic_write_text(page, embed_reports(Path(page)))
-        print(f"[benchmark] rebuilt the reports embedded in {page}")
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     own, extra = _split_extra(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     args = parser.parse_args(own)
-    if args.docs and not args.report_only:
-        parser.error("--docs rebuilds pages from committed runs: add --report-only")
-    missing = [page for page in args.docs or () if not Path(page).is_file()]
-    if missing:
-        parser.error(f"--docs {missing[0]}: no such page (a markdown file with report embeds)")
     if args.grid:
-        code = _grid_main(parser, args, extra)
-        if code == 0:
-            _rebuild_pages(args.docs or ())
-        return code
-    if args.report_only and args.docs:
-        _rebuild_pages(args.docs)
-        return 0
+        return _grid_main(parser, args, extra)
     if not args.out:
-        parser.error("--out is required (unless --report-only --docs PAGE)")
+        parser.error("--out is required (unless --grid)")
     out = Path(args.out)
     if args.report_only:
         try:

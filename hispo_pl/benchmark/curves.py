@@ -5,10 +5,9 @@ A single-task ``fit`` with ``--eval_every N`` writes every evaluation of its tas
 (``runs/<setting>-<family>-<maze>/seed<S>/result.json``, as ``benchmarks/single_task_table.py``
 lays them out) holding a ``curves.json`` (which settings and tasks, the tolerance) is a learning
 curve study: its report is the mean curve of each (setting, task) over seeds, the figure, and
-the budget :func:`choose_budget` picks from them. ``embed_reports`` rebuilds a page's copy of
-``curves.md`` from the committed files, as it does a stream's tables.
+the budget :func:`choose_budget` picks from them, rebuilt from the runs' files alone.
 
-    write_curves_report(Path("docs/results/curves"))  # curves.md, curves.csv, curves.png
+    write_curves_report(Path("results/curves"))  # curves.md, curves.csv, curves.png
 """
 
 from __future__ import annotations

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import os
 
-from ..cli_errors import VerbParser
 from ..cli_common import NUM_THREADS_FLAGS
+from ..cli_errors import VerbParser
 
 
 def cpu_count() -> int:
@@ -57,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
             "results/pointmaze-1 --launcher ray --address auto\n"
             "  hispo-pl benchmark --out results/pointmaze-1 --report-only\n"
             "  hispo-pl benchmark --grid paper --part pointmaze --out results/grid --export "
-            "docs/results"
+            "results/kept"
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -139,19 +139,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="only rebuild the tables and figure in OUT from the finished runs",
     )
     parser.add_argument(
-        "--docs",
-        metavar="PAGE",
-        nargs="+",
-        default=None,
-        help="with --report-only: rebuild every report embedded in these documentation pages "
-        "(e.g. README.md docs/results.md) from their committed run files; with --grid, after "
-        "the grid's own reports",
-    )
-    parser.add_argument(
         "--export",
         metavar="DEST",
         default=None,
         help="copy every finished run's small files (results, decisions, config) to "
-        "DEST/<method>/seed<S>/ and write the report there (e.g. docs/results/pointmaze-1)",
+        "DEST/<method>/seed<S>/ and write the report there (e.g. results/kept/pointmaze-1)",
     )
     return parser

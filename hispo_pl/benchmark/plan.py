@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import shlex
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -293,49 +293,46 @@ def foreign_runs(runs: Sequence[PlannedRun], stream: str) -> list[str]:
 BRANCH_RECORD = ("branched_from", "branched_tasks")
 
 
+# what else a launch records about the code it runs, each a function giving run.json keys (a
+# repository's tool adds its checkout's commit): called in the launching process
+CODE_RECORDERS: list[Callable[[], dict]] = []
+
+
 def provenance() -> dict:
-    """Where a run is made: the code's git commit (``+dirty`` with uncommitted changes; None
-    outside a checkout) and the machine, for the run's ``run.json``."""
+    """Where a run is made, for the run's ``run.json``: hispo-pl's version and the machine,
+    then what each of :data:`CODE_RECORDERS` adds."""
     import importlib.metadata
     import platform
-    import subprocess
 
     from .parser import cpu_count
 
-    root = Path(__file__).resolve().parents[2]
-
-    def git(*args: str) -> str | None:
+    def version(name: str) -> str | None:
         try:
-            done = subprocess.run(
-                ["git", "-C", str(root), *args], capture_output=True, text=True, timeout=10
-            )
-        except (OSError, subprocess.TimeoutExpired):
+            return importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
             return None
-        return done.stdout.strip() if done.returncode == 0 else None
 
-    commit = git("rev-parse", "HEAD")
-    if commit and git("status", "--porcelain", "--untracked-files=no"):
-        commit += "+dirty"
-    try:
-        torch_version = importlib.metadata.version("torch")
-    except importlib.metadata.PackageNotFoundError:
-        torch_version = None
-    return {
-        "commit": commit,
+    made = {
+        "version": version("hispo-pl"),
         "machine": {
             "platform": platform.platform(),
             "cpus": cpu_count(),
             "python": platform.python_version(),
-            "torch": torch_version,
+            "torch": version("torch"),
         },
     }
+    for recorder in CODE_RECORDERS:
+        made |= recorder()
+    return made
 
 
 def provenance_problem(record: dict) -> str | None:
     """Why a run's recorded provenance (``run.json``, or :func:`provenance`) does not name
-    the code that made it, or None when it does: no commit, or a tree with uncommitted
-    changes."""
-    commit = record.get("commit")
+    the code that made it, or None when it does: a recorder of the commit found none, or a tree
+    with uncommitted changes. A launch that records no commit at all has nothing to say."""
+    if "commit" not in record:
+        return None
+    commit = record["commit"]
     if not commit:
         return "no commit recorded (made outside a git checkout, or before runs recorded one)"
     if str(commit).endswith("+dirty"):

@@ -54,8 +54,7 @@ def derived_source(method: str, meta: Mapping) -> str | None:
 def finished_run_dirs(out: Path, results: str = RunDir.RESULTS) -> list[Path]:
     """Run folders with a ``results.json`` (``results``: the file that marks a finished run,
     ``RunDir.RESULT`` for single-task fits): ``OUT/runs/<method>/seed<S>`` (where the
-    benchmark runs them) or ``OUT/<method>/seed<S>`` (an exported copy, e.g. under
-    ``docs/results``)."""
+    benchmark runs them) or ``OUT/<method>/seed<S>`` (an exported copy, ``--export``)."""
     out = Path(out)
     found = list(out.glob(f"{RUNS_DIR}/*/seed*/{results}"))
     found += [p for p in out.glob(f"*/seed*/{results}") if p.parts[-3] != RUNS_DIR]
@@ -143,7 +142,7 @@ def refuse_foreign_export(found: Sequence[str], dest: Path) -> None:
 def export_runs(out: Path, dest: Path) -> list[Path]:
     """Copy the small files of every finished run under ``out`` (results, decisions, config,
     run record; never checkpoints or event files) to ``dest/<method>/seed<S>/``, the layout
-    that is committed under ``docs/results/<stream>/`` and read back by ``--report-only``.
+    that is kept (committed, shared) and read back by ``--report-only``.
     A link among them is refused before anything is copied; a link in ``dest`` is replaced.
 
     Raises:

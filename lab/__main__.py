@@ -1,0 +1,138 @@
+"""``python -m lab``: rebuild what this repository commits from its committed run files, or
+launch a benchmark whose runs record the checkout's commit.
+
+    python -m lab rebuild                       # all of the below, in order
+    python -m lab grid-reports paper            # docs/results/<stream>/ tables, grid-paper/
+    python -m lab claims                        # docs/results/claims/claims.md
+    python -m lab manifests                     # docs/results/*/MANIFEST.md
+    python -m lab rebuild-docs README.md docs/results.md   # the reports the pages embed
+    python -m lab benchmark --grid paper --out results/grid --export docs/results
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from contextlib import suppress
+from pathlib import Path
+
+from hispo_pl.errors import UserError
+
+RESULTS = Path("docs/results")
+CLAIMS = RESULTS / "claims"
+GRIDS = ("paper",)  # the grids whose reports are committed under docs/results
+
+
+def pages() -> list[Path]:
+    """Every page of the repository that embeds a report."""
+    from .embed import EMBED_BEGIN
+
+    found = [Path("README.md"), *sorted(Path("docs").glob("*.md"))]
+    found += sorted(Path("docs/studies").glob("*.md"))
+    return [p for p in found if EMBED_BEGIN in p.read_text()]
+
+
+def rebuild_docs(names: Sequence[str]) -> None:
+    from hispo_pl.io import atomic_write_text
+
+    from .embed import embed_reports
+
+    for page in [Path(n) for n in names] or pages():
+        text = embed_reports(page)
+        if text != page.read_text():
+            atomic_write_text(page, text)
+            print(f"[lab] rebuilt the reports embedded in {page}")
+
+
+def grid_reports(name: str, root: Path) -> None:
+    """The tables of the grid's streams and the grid's reports, as this repository commits
+    them (the paper's columns and tables beside ours)."""
+    from hispo_pl.benchmark.grid import load_grid
+    from hispo_pl.benchmark.grid_report import write_grid_report
+    from hispo_pl.benchmark.report import write_report
+    from hispo_pl.config_files import config_root
+
+    from . import beside_paper
+
+    grid = load_grid(name, config_root())
+    for stream in grid.streams:
+        with suppress(FileNotFoundError):  # nothing committed for it yet
+            write_report(root / stream, stream)
+    for path in write_grid_report(grid, root, reports=beside_paper.grid_reports):
+        print(f"[lab] wrote {path}")
+
+
+def claims(folder: Path) -> None:
+    from .claims import write_claims_report
+
+    write_claims_report(folder)
+    print(f"[lab] wrote {folder / 'claims.md'}")
+
+
+def manifests(root: Path) -> None:
+    from .manifest import write_manifests
+
+    for path in write_manifests(root):
+        print(f"[lab] wrote {path}")
+
+
+def benchmark(argv: Sequence[str]) -> int:
+    """``hispo-pl benchmark ARGS``, each launched run's ``run.json`` recording the checkout's
+    commit; a grid's reports then rewritten as this repository commits them."""
+    from hispo_pl.benchmark import command, plan
+
+    from .provenance import checkout_commit
+
+    plan.CODE_RECORDERS.append(checkout_commit)
+    code = command.main(list(argv))
+    args, _ = command.build_parser().parse_known_args(list(argv))
+    if code == 0 and args.grid and args.export and not args.dry_run:
+        grid_reports(args.grid, Path(args.export))
+    return code
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m lab", description=__doc__.split("\n\n")[0])
+    verbs = parser.add_subparsers(dest="verb", required=True)
+    verbs.add_parser("rebuild", help="grid reports, claims, manifests, then every page")
+    docs = verbs.add_parser("rebuild-docs", help="rebuild the reports pages embed")
+    docs.add_argument("pages", nargs="*", help="the pages (default: every page with an embed)")
+    grid = verbs.add_parser("grid-reports", help="a grid's stream tables and reports")
+    grid.add_argument("grid", nargs="?", default="paper")
+    grid.add_argument("--root", type=Path, default=RESULTS)
+    verbs.add_parser("claims", help=f"{CLAIMS}/claims.md")
+    made = verbs.add_parser("manifests", help="the MANIFEST.md of every reference folder")
+    made.add_argument("root", nargs="?", type=Path, default=RESULTS)
+    verbs.add_parser("benchmark", help="hispo-pl benchmark, recording the checkout's commit")
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["benchmark"]:  # every other argument is the benchmark's
+        return benchmark(argv[1:])
+    args = parser.parse_args(argv)
+    try:
+        run(args)
+    except UserError as err:  # a page or run file to fix: one line, as hispo-pl says it
+        print(f"python -m lab {args.verb}: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def run(args: argparse.Namespace) -> None:
+    if args.verb == "rebuild":
+        for name in GRIDS:
+            grid_reports(name, RESULTS)
+        claims(CLAIMS)
+        manifests(RESULTS)
+        rebuild_docs([])
+    elif args.verb == "rebuild-docs":
+        rebuild_docs(args.pages)
+    elif args.verb == "grid-reports":
+        grid_reports(args.grid, args.root)
+    elif args.verb == "claims":
+        claims(CLAIMS)
+    elif args.verb == "manifests":
+        manifests(args.root)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,179 @@
+"""The repository's tools (``lab/``, never shipped): the paper's figures read from data, the
+tables that set ours beside them, the reports embedded in a page, the manifests read from each
+run's ``run.json`` alone, and launches that record the checkout's commit."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+from helpers import ROOT
+
+from hispo_pl.benchmark import grid as gr
+from hispo_pl.benchmark import grid_report as gp
+from hispo_pl.benchmark import plan
+from lab import beside_paper, paper
+from lab.__main__ import main as lab_main
+from lab.embed import EMBED_BEGIN, EMBED_END, embed_reports
+from lab.manifest import MANIFEST, folder_provenance, write_manifests
+from lab.provenance import checkout_commit
+
+RESULTS = ROOT / "docs" / "results"
+GRID = {"streams": ["pointmaze-1", "pointmaze-2"], "methods": ["scn", "hispo"], "seeds": 3}
+
+
+def test_the_papers_figures_are_read_from_data_as_printed():
+    assert paper.paper_row("pointmaze-1", "hispo")["PER"] == (98.0, 0.4)  # its Table 7
+    assert paper.paper_row("pointmaze-1", "csp") is None  # it ran no CSP per stream
+    assert paper.AGGREGATE["hispo"] == (87.7, 0.0, 2.0) and paper.METRICS[-1] == "MEM"
+    assert paper.ANTMAZE_ABLATION["csp"] == ((42.4, 5.7), (2.7, 0.1))
+    assert paper.mean_per("hispo", ["pointmaze-1", "pointmaze-2"]) == pytest.approx(98.9)
+    assert paper.mean_per("csp", ["pointmaze-1"]) is None
+
+
+def test_the_aggregate_gets_the_papers_columns_and_a_page_embeds_it(tmp_path):
+    pytest.importorskip("rliable")
+    root = tmp_path / "results"
+    for stream in GRID["streams"]:
+        shutil.copytree(RESULTS / stream, root / stream)
+    grid = gr.grid_from_dict(GRID, "g")
+    gp.write_grid_report(grid, root, figures=False)  # the product's: no paper in it
+    lines = (root / "grid-g/aggregate.md").read_text().splitlines()
+    (product,) = [line for line in lines if line.startswith("| hispo |")]
+    assert re.fullmatch(r"\| hispo \| 2 of 2 \|.* \| [\d.]+ \[[\d.]+, [\d.]+\] \|", product)
+    gp.write_grid_report(grid, root, figures=False, reports=beside_paper.grid_reports)
+    aggregate = (root / "grid-g/aggregate.md").read_text()
+    # the paper's PER on the same two streams (its Table 7: 98.0 and 99.8), then its Table 1
+    (hispo,) = [line for line in aggregate.splitlines() if line.startswith("| hispo |")]
+    assert hispo.startswith(product[:-1]) and hispo.endswith("| 98.9 | 87.7 | 0.0 | 2.0 |")
+    assert "FZ there is frz here" in aggregate and (root / "grid-g/beside-paper.md").is_file()
+    page = tmp_path / "page.md"
+    page.write_text(f"x\n{EMBED_BEGIN}{root / 'grid-g/aggregate.md'} -->\nstale\n{EMBED_END}\n")
+    rebuilt = embed_reports(page, Path("/"))
+    assert "stale" not in rebuilt and hispo in rebuilt
+    assert rebuilt == embed_reports(page, Path("/"))  # the intervals are seeded
+
+
+def test_beside_paper_puts_the_papers_figure_next_to_ours(tmp_path):
+    shutil.copytree(RESULTS / "pointmaze-1/frz", tmp_path / "pointmaze-1/frz")
+    text = beside_paper.beside_paper_markdown(gp.Committed(tmp_path))
+    frz = next(line for line in text.splitlines() if line.startswith("| frz | 3 |"))
+    assert frz.startswith("| frz | 3 | 34.2 ± 2.6 | 37.8 ± 0.8 |")  # the paper's FZ, Table 7
+    assert "| pnn |  | 99.4 ± 0.8 |  | 0.0 ± 0.0 |" in text  # not run here: an empty cell
+    assert "| videogame-2 |" not in text and "### videogame-2 (the paper's Table 9)" in text
+
+
+def test_beside_paper_of_a_grid_shows_its_streams_and_those_with_runs(tmp_path):
+    shutil.copytree(RESULTS / "pointmaze-1/frz", tmp_path / "pointmaze-1/frz")
+    streams = ["pointmaze-1", "pointmaze-2"]
+    text = beside_paper.beside_paper_markdown(gp.Committed(tmp_path), streams)
+    assert "### pointmaze-2 (the paper's Table 7)" in text  # the grid's, not run yet
+    assert "### videogame-1" not in text and "AntMaze ablation" not in text
+    shutil.copytree(RESULTS / "antmaze-1/hispo", tmp_path / "antmaze-1/hispo")
+    text = beside_paper.beside_paper_markdown(gp.Committed(tmp_path), streams)
+    assert "### antmaze-1 (the paper's Table 8)" in text and "AntMaze ablation" in text
+
+
+def test_summary_bolds_the_best_and_counts_seeds_other_than_three(tmp_path):
+    for method in ("hispo", "scn"):
+        shutil.copytree(RESULTS / f"pointmaze-1/{method}", tmp_path / f"pointmaze-1/{method}")
+    shutil.copytree(RESULTS / "pointmaze-1/scn/seed0", tmp_path / "pointmaze-2/scn/seed0")
+    text = beside_paper.summary_markdown(gp.Committed(tmp_path))
+    assert "| PointMaze-1 | **99.4 ± 0.1 / 3.37** | 98.8 ± 0.4 / 4.00 | – |" in text
+    assert "| PointMaze-2 | – | **99.0 / 4.00 (1 seed)** | – |" in text
+    assert text.rstrip().splitlines()[-3].startswith("| VideoGame-2 | – |")
+
+
+def _finished_run(out: Path, method: str, seed: int) -> Path:
+    run = out / "runs" / method / f"seed{seed}"
+    run.mkdir(parents=True)
+    tasks = ["pointmaze-umaze-N[500]", "pointmaze-large-N[500]"]
+    R = [[0.9, None], [0.9, 0.9]]
+    (run / "results.json").write_text(json.dumps({"stream": tasks, "R": R, "MEM": 1.0}))
+    (run / "run.json").write_text(json.dumps({"method": method, "seed": seed}))
+    return run
+
+
+@pytest.mark.parametrize(
+    "embed, said",
+    [
+        ("<!-- report: {tmp}/none/table.md -->\nold\n<!-- end report -->", "no runs"),
+        ("<!-- report: {tmp}/x/runs/table.md -->\nold\n", "has no closing"),
+        ("<!-- report: {tmp}/x/runs/nothing.md -->\nold\n<!-- end report -->", "nothing.md"),
+    ],
+    ids=["no-runs", "not-closed", "no-such-report"],
+)
+def test_a_page_whose_embed_cannot_be_built_is_one_line(tmp_path, capsys, embed, said):
+    _finished_run(tmp_path / "x", "scn", 0)  # x/runs: an exported stream's layout
+    page = tmp_path / "page.md"
+    page.write_text("# page\n" + embed.replace("{tmp}", str(tmp_path)) + "\n")
+    before = page.read_text()
+    assert lab_main(["rebuild-docs", str(page)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert said in err and str(page) in err and len(err.splitlines()) == 1, err
+    assert page.read_text() == before
+
+
+def test_a_manifest_row_reads_the_runs_own_run_json(tmp_path):
+    made = tmp_path / "hispo" / "seed0"
+    made.mkdir(parents=True)
+    (made / "results.json").write_text("{}")
+    argv = ["-m", "hispo_pl.cli", "fit", "--config", "/work/x/configs/streams/pointmaze-1.yaml"]
+    machine = {"platform": "Linux-6", "cpus": 2, "python": "3.11", "torch": "2.13.0+cpu"}
+    record = {"commit": "89f9f6fab9ca098775c946e85840a779acbebc32+dirty", "machine": machine}
+    (made / "run.json").write_text(json.dumps({**record, "argv": argv}))
+    older = tmp_path / "scn" / "seed0"
+    older.mkdir(parents=True)
+    (older / "results.json").write_text("{}")
+    (older / "config.yaml").write_text("seed_everything: 0\n")
+    (older / "run.json").write_text(json.dumps({"committed_in": "abc1234"}))
+    bare = tmp_path / "sc1" / "seed0"
+    bare.mkdir(parents=True)
+    (bare / "results.json").write_text("{}")
+    rows = [(r.run, r.commit, r.machine, r.command) for r in folder_provenance(tmp_path)]
+    assert rows == [
+        (
+            "hispo/seed0",
+            "89f9f6f+dirty",
+            "Linux-6, 2 CPUs, torch 2.13.0+cpu",
+            "`hispo-pl fit --config configs/streams/pointmaze-1.yaml`",
+        ),
+        ("sc1/seed0", "not recorded", "not recorded", "not recorded"),
+        (
+            "scn/seed0",
+            "abc1234 (committed)",
+            "not recorded",
+            "not recorded; its settings: `scn/seed0/config.yaml`",
+        ),
+    ]
+
+
+def test_a_manifest_replaces_its_link_and_escapes_what_run_json_says(tmp_path):
+    folder = tmp_path / "pointmaze-1"
+    run = _finished_run(folder, "scn", 0)
+    crafted = ["-m", "hispo_pl.cli", "fit", "x |\n| injected | row | here | `code` |\n"]
+    record = {"argv": crafted, "commit": "abc|def", "machine": {"platform": "a\nb"}}
+    (run / "run.json").write_text(json.dumps(record))
+    victim = tmp_path / "victim"
+    victim.write_text("victim\n")
+    (folder / MANIFEST).symlink_to(victim)
+    write_manifests(tmp_path)
+    assert victim.read_text() == "victim\n" and not (folder / MANIFEST).is_symlink()
+    rows = [ln for ln in (folder / MANIFEST).read_text().splitlines() if ln.startswith("|")]
+    assert len(rows) == 3 and "injected" in rows[2]  # the header, its rule, the run
+    assert rows[2].replace("\\|", "").count("|") == 5 and "\\`code\\`" in rows[2]
+
+
+def test_a_launch_records_the_checkout_commit_only_through_the_lab(monkeypatch):
+    made = plan.provenance()  # the product's: the machine and hispo-pl's version, no git
+    assert "commit" not in made and made["machine"]["cpus"] >= 1
+    assert plan.provenance_problem(made) is None  # nothing recorded, nothing to warn about
+    commit = checkout_commit()["commit"]
+    assert commit is None or re.fullmatch(r"[0-9a-f]{40}(\+dirty)?", commit)
+    monkeypatch.setattr(plan, "CODE_RECORDERS", [lambda: {"commit": "c" * 40}])
+    assert plan.provenance()["commit"] == "c" * 40
+    assert "no commit" in plan.provenance_problem({"commit": None})
+    assert "uncommitted changes" in plan.provenance_problem({"commit": "a" * 40 + "+dirty"})
