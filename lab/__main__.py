@@ -34,11 +34,14 @@ def pages() -> list[Path]:
 
 
 def rebuild_docs(names: Sequence[str]) -> None:
+    from hispo_pl.errors import ConfigError
     from hispo_pl.io import atomic_write_text
 
     from .embed import embed_reports
 
     for page in [Path(n) for n in names] or pages():
+        if not page.is_file():
+            raise ConfigError(f"{page}: no such page")
         text = embed_reports(page)
         if text != page.read_text():
             atomic_write_text(page, text)

@@ -117,6 +117,13 @@ def test_a_page_whose_embed_cannot_be_built_is_one_line(tmp_path, capsys, embed,
     assert page.read_text() == before
 
 
+def test_a_page_that_does_not_exist_is_one_line(tmp_path, capsys):
+    assert lab_main(["rebuild-docs", str(tmp_path / "no.md")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"python -m lab rebuild-docs: {tmp_path / 'no.md'}: no such page"
+    assert not (tmp_path / "no.md").exists()
+
+
 def test_a_manifest_row_reads_the_runs_own_run_json(tmp_path):
     made = tmp_path / "hispo" / "seed0"
     made.mkdir(parents=True)

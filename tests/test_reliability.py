@@ -640,12 +640,8 @@ def test_a_read_only_run_directory_is_one_paragraph(tiny_umaze, small_disk, caps
         (["render", "pointmaze-umaze", "--out", "{tmp}/file/m.png"], "a file is in the way"),
         (["render", "pointmaze-umaze", "--out", "{tmp}/" + "n" * 300 + ".png"], "too long"),
         (["config", "copy", "{tmp}/file"], "{tmp}/file is a file; config copy fills a folder"),
-        (
-            ["benchmark", "--report-only", "--docs", "{tmp}/no.md"],
-            "--docs {tmp}/no.md: no such page",
-        ),
     ],
-    ids=["render-extension", "render-file-in-the-way", "name-too-long", "config-copy", "docs"],
+    ids=["render-extension", "render-file-in-the-way", "name-too-long", "config-copy"],
 )
 def test_paths_that_cannot_be_written_are_one_paragraph(tmp_path, capsys, argv, said):
     (tmp_path / "file").write_text("in the way")

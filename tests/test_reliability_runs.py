@@ -56,13 +56,13 @@ def test_kill_after_decisions_before_progress_keeps_one_record_per_task(tiny_uma
     args = tiny_stream_args(config, tmp_path)
     prelude = """
 import os, signal
-from hispo_pl.loop import ContinualLoop
-_save = ContinualLoop._save_progress
+from hispo_pl.rundir import RunDir
+_save = RunDir.write_progress
 def _killed_at_first_task_end(self, progress):
-    if len(progress["rows"]) == 1:  # task 1's decisions are written, its progress is not
+    if len(progress.rows) == 1:  # task 1's decisions are written, its progress is not
         os.kill(os.getpid(), signal.SIGKILL)
     _save(self, progress)
-ContinualLoop._save_progress = _killed_at_first_task_end
+RunDir.write_progress = _killed_at_first_task_end
 """
     proc = spawn(cli_source(args, prelude))
     proc.communicate(timeout=300)
