@@ -37,8 +37,7 @@ class ZeroShotTransfer(KeyedState):
         eps_high: distance (maze units) the high policy's subgoal may be off.
         eps_low: distance the low policy's action may be off (actions lie in [-1, 1]²; the
             expert data carry Gaussian action noise of std 0.2). The defaults separate a
-            repeated task from a new one (docs/method.md, measured with
-            ``benchmarks/pac_calibration.py`` at commit 720d51a).
+            repeated task from a new one on the PointMaze streams (measured on their runs).
         delta: accepted probability of a larger error.
         n_candidates, n_batches, survivors, probe_samples, precision, seed: the search, as in
             :class:`DirichletEvaluation`.
