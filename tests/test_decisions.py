@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from hispo_pl.decisions import keep_previous, previous_subspace_candidates
+from hispo_pl.decisions import keep_previous, previous_subspace_candidates, tolerance_problem
 
 # --- keep_previous: prune the new anchor iff L_prev <= (1 + eps) * L_curr -------------------
 
@@ -108,3 +108,14 @@ def test_extended_subspace_candidates_start_with_the_trained_weights_and_the_new
     assert torch.equal(cands[0], trained) and cands[1].tolist() == [0.0, 0.0, 1.0]
     assert torch.allclose(cands.sum(1), torch.ones(52)) and (cands >= 0).all()
     assert (cands[2:, -1] > 0).all()  # the draws use every anchor, the new one included
+
+
+@pytest.mark.parametrize("bad", [-0.1, float("nan")])
+def test_the_rules_callbacks_refuse_a_tolerance_by_the_one_check(bad):
+    from hispo_pl.callbacks import CriticPruning, SubspacePruning
+
+    assert tolerance_problem(bad) == "must be >= 0"
+    with pytest.raises(ValueError, match="must be >= 0"):
+        SubspacePruning(eps_low=bad)
+    with pytest.raises(ValueError, match="must be >= 0"):
+        CriticPruning(eps=bad)

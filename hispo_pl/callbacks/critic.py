@@ -13,7 +13,12 @@ import torch
 from torch import Tensor
 from typing_extensions import override
 
-from ..decisions import critic_extends, extended_subspace_candidates, previous_subspace_candidates
+from ..decisions import (
+    critic_extends,
+    extended_subspace_candidates,
+    previous_subspace_candidates,
+    tolerance_problem,
+)
 from ..nn import eval_mode
 from ..results import CriticDecision, CriticSearchResult
 from ..rundir import task_label
@@ -163,8 +168,8 @@ class CriticPruning(KeyedState):
     state_args = ("eps",)
 
     def __init__(self, eps: float = 0.1):
-        if eps < 0:
-            raise ValueError(f"eps must be non-negative, got {eps}")
+        if tolerance_problem(eps):
+            raise ValueError(f"CriticPruning's eps {tolerance_problem(eps)}, got {eps}")
         self.eps = eps
 
     @override

@@ -13,7 +13,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_warn
 from typing_extensions import override
 
-from ..decisions import decided_by_budget, keep_previous
+from ..decisions import decided_by_budget, keep_previous, tolerance_problem
 from ..results import Decision, LossDecision, SearchResult, ZeroShotDecision, rule_metrics
 from ..rundir import RunDir, task_label
 from ..tasks import Family
@@ -84,7 +84,7 @@ class SubspacePruning(KeyedState):
     ):
         given = {"high": eps_high, "low": eps_low, **(eps or {})}
         self.eps = {name: e for name, e in given.items() if e is not None}
-        bad = {name: e for name, e in self.eps.items() if not e >= 0}
+        bad = {name: e for name, e in self.eps.items() if tolerance_problem(e)}
         if bad:  # checked here, not after a task has trained
             raise ValueError(f"SubspacePruning tolerances must be >= 0, got {bad}")
 
