@@ -13,7 +13,7 @@
 
 The verbs, their help and the errors of the whole command live here; ``fit`` runs through the
 fit API (:mod:`hispo_pl.fit`, a stream's loop in :mod:`hispo_pl.cli_stream`), ``data``,
-``evaluate`` and ``render`` in :mod:`hispo_pl.commands`, ``benchmark`` in
+``evaluate`` and ``render`` in :mod:`hispo_pl.cli_verbs`, ``benchmark`` in
 :mod:`hispo_pl.benchmark`. Each verb's module is imported when the verb runs, so help answers
 without loading Lightning.
 """
@@ -193,7 +193,7 @@ def _dispatch(argv: list[str]) -> int:
     if argv[0] in NOT_HERE:
         raise UserError(f"no {argv[0]!r} verb here; {NOT_HERE[argv[0]]}")
     if argv[0] in ("data", "evaluate", "render"):
-        from .commands import data_main, evaluate_main, render_main
+        from .cli_verbs import data_main, evaluate_main, render_main
 
         verb_main = {"data": data_main, "evaluate": evaluate_main, "render": render_main}
         return verb_main[argv[0]](argv[1:])

@@ -3,8 +3,8 @@
 IQL never queries the critic on actions outside the data: ``Q(s, a)`` regresses on
 ``r + γ (1 − done) V(s')`` for the dataset's action ``a``, and ``V(s)`` is an upper expectile
 of ``Q(s, a)`` over the dataset's actions (the expectile ``τ`` → 1 approaches the best action
-the data show). CSP's subspace critic (:class:`~hispo_pl.nn.critic.SubspaceCritic`) is trained
-with these on each task's relabelled goals.
+the data show). CSP's subspace critic (:class:`~hispo_pl.nn.subspace_critic.SubspaceCritic`)
+is trained with these on each task's relabelled goals.
 """
 
 from __future__ import annotations

@@ -88,7 +88,7 @@ def success_markdown(R: Sequence[Sequence[float | None]]) -> str:
     return "\n".join(lines)
 
 
-def decisions_markdown(decisions: Sequence[Decision]) -> str:
+def run_decisions_markdown(decisions: Sequence[Decision]) -> str:
     """A table per kind of decision the run took (:func:`~hispo_pl.results.decisions_table`):
     one row per task and subspace, with what its rule compared and the anchors after."""
     tables = [decisions_table(kind, [((), decisions)]) for kind in DECISION_KINDS]
@@ -321,7 +321,7 @@ def log_stream_end(
                         f"alpha/{subspace}/simplex", simplex_figure(rows, subspace), step
                     )
             if decisions:
-                writer.add_text("stream/decisions", decisions_markdown(decisions), step)
+                writer.add_text("stream/decisions", run_decisions_markdown(decisions), step)
                 writer.add_text("stream/anchors", anchors_markdown(decisions), step)
         else:  # no pictures: the anchor weights as scalars
             logger.log_hyperparams(hparams)

@@ -83,13 +83,13 @@ def manifests(root: Path) -> None:
 def benchmark(argv: Sequence[str]) -> int:
     """``hispo-pl benchmark ARGS``, each launched run's ``run.json`` recording the checkout's
     commit; a grid's reports then rewritten as this repository commits them."""
-    from hispo_pl.benchmark import command, plan
+    from hispo_pl.benchmark import command_line, plan
 
     from .provenance import checkout_commit
 
     plan.CODE_RECORDERS.append(checkout_commit)
-    code = command.main(list(argv))
-    args, _ = command.build_parser().parse_known_args(list(argv))
+    code = command_line.main(list(argv))
+    args, _ = command_line.build_parser().parse_known_args(list(argv))
     if code == 0 and args.grid and args.export and not args.dry_run:
         grid_reports(args.grid, Path(args.export))
     return code

@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
 
+from hispo_pl.benchmark.finished_runs import mean_std
 from hispo_pl.benchmark.grid import Grid
 from hispo_pl.benchmark.grid_report import (
     AggregateColumn,
@@ -18,7 +19,6 @@ from hispo_pl.benchmark.grid_report import (
     aggregate_subgrids,
 )
 from hispo_pl.benchmark.grid_report import grid_reports as product_reports
-from hispo_pl.benchmark.records import mean_std
 from hispo_pl.benchmark.tables import derived_footnote, derived_method, metric_cell
 from hispo_pl.methods import shipped_method_name
 from hispo_pl.metrics import METRIC

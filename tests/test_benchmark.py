@@ -351,7 +351,7 @@ def test_critic_decisions_go_to_their_own_table():
     row = "| csp | 0 | 2 | 0.5000 | 0.5200 | 0.1 | 1.500 | 0.0100 | 0.2000 | 0.050 | prune | 1 |"
     assert md.startswith("# Critic decisions: pointmaze-1") and row in md
     assert "| cspo |" not in md  # loss rules stay in decisions.md
-    assert "| csp |" not in bm.decisions_markdown(records)
+    assert "| csp |" not in bm.loss_decisions_markdown(records)
     assert bm.critic_markdown(records[1:]) == ""
 
 

@@ -370,9 +370,9 @@ def test_periodic_search_rejects_a_negative_period():
 
 def test_refine_current_takes_a_better_point_of_the_grown_subspace():
     """The trained weights are replaced only by a point with a lower loss on the same batches."""
-    from hispo_pl.callbacks.search import _refine
+    from hispo_pl.callbacks.loss_search import _refine
     from hispo_pl.decisions import extended_subspace_candidates
-    from hispo_pl.search import race_candidates
+    from hispo_pl.race import race_candidates
 
     target = torch.tensor([0.0, 0.0, 1.0])  # the loss is lowest at the new anchor alone
 

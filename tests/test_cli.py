@@ -312,7 +312,7 @@ def test_a_knob_the_method_lacks_is_refused(capsys):
 
 
 def test_acting_on_another_task_than_the_policys_own_is_named(tmp_path):
-    from hispo_pl.commands import other_task_note
+    from hispo_pl.cli_verbs import other_task_note
     from hispo_pl.results import Progress
     from hispo_pl.rundir import RunDir
     from hispo_pl.tasks import parse_task

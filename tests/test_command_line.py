@@ -27,10 +27,10 @@ HBC = str(ROOT / "configs/hbc/pointmaze-umaze.yaml")
     ids=["evaluate", "render"],
 )
 def test_evaluate_and_render_take_both_spellings_of_the_thread_count(argv, flag, monkeypatch):
-    import hispo_pl.commands
+    import hispo_pl.cli_verbs
 
     asked: list[int] = []
-    monkeypatch.setattr(hispo_pl.commands, "set_num_threads", asked.append)
+    monkeypatch.setattr(hispo_pl.cli_verbs, "set_num_threads", asked.append)
     assert main([*argv, flag, "3"]) == 2  # no such checkpoint / no episodes: after the threads
     assert asked == [3]
 

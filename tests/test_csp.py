@@ -17,8 +17,8 @@ from hispo_pl.iql import expectile_loss, goal_reward, polyak_update, td_loss, td
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules import CSP, CSPO, CriticScoredSubspace
 from hispo_pl.modules.hbc import GoalConditionedBC
-from hispo_pl.nn.critic import CriticConfig, SubspaceCritic
 from hispo_pl.nn.hierarchy import high_input, low_input
+from hispo_pl.nn.subspace_critic import CriticConfig, SubspaceCritic
 from hispo_pl.results import CriticDecision, CriticSearchResult
 from hispo_pl.rundir import RunDir
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hispo_pl.benchmark.records import MethodRow
+from hispo_pl.benchmark.finished_runs import MethodRow
 from hispo_pl.figures import (
     METHOD_STYLES,
     anchor_counts_figure,

@@ -229,10 +229,10 @@ def test_print_config_refuses_an_unknown_flag_as_a_run_does(capsys):
 )
 def test_evaluate_and_render_use_one_thread_unless_told(argv, monkeypatch):
     """As fit's configs: one torch thread by default, set before anything else is checked."""
-    import hispo_pl.commands
+    import hispo_pl.cli_verbs
 
     asked: list[int] = []
-    monkeypatch.setattr(hispo_pl.commands, "set_num_threads", asked.append)
+    monkeypatch.setattr(hispo_pl.cli_verbs, "set_num_threads", asked.append)
     assert main(argv) == 2 and main([*argv, "--num_threads", "0"]) == 2
     assert asked == [1, 0]
 

@@ -15,8 +15,8 @@ from helpers import BENCH_TINY, BENCH_TINY_OVERRIDES, grid_config_dir
 
 from hispo_pl.benchmark import grid as gr
 from hispo_pl.benchmark import grid_report as gp
+from hispo_pl.benchmark.finished_runs import RunRecord
 from hispo_pl.benchmark.launch import execute_run
-from hispo_pl.benchmark.records import RunRecord
 from hispo_pl.benchmark.tables import run_minutes
 from hispo_pl.cli import main as cli_main
 from hispo_pl.errors import ConfigError

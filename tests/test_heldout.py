@@ -12,7 +12,7 @@ import torch
 from helpers import quiet_trainer
 
 from hispo_pl.callbacks import AnchorExtension, DirichletEvaluation, SubspacePruning
-from hispo_pl.callbacks.search import window_start
+from hispo_pl.callbacks.loss_search import window_start
 from hispo_pl.config import BackboneConfig, OptimConfig
 from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.data.datasets import EpisodeArrays

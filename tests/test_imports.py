@@ -139,10 +139,10 @@ def test_the_package_has_no_import_circle():
 def test_the_graph_holds_the_package_imports():
     """The walk sees relative, absolute and lazy imports, the callbacks' among them."""
     graph = import_graph()
-    assert "hispo_pl.callbacks.search" in graph
+    assert "hispo_pl.callbacks.loss_search" in graph
     assert "hispo_pl.tasks" in graph["hispo_pl.data.datasets"]  # from ..tasks import
-    assert "hispo_pl.fit" in graph["hispo_pl.benchmark.command"]  # inside a function
-    assert "hispo_pl.cli" not in graph["hispo_pl.benchmark.command"]
+    assert "hispo_pl.fit" in graph["hispo_pl.benchmark.command_line"]  # inside a function
+    assert "hispo_pl.cli" not in graph["hispo_pl.benchmark.command_line"]
     assert "hispo_pl.data.generation" not in graph["hispo_pl.data.datasets"]
 
 

@@ -3,7 +3,7 @@ loop's own recording is pinned in tests/test_cli_stream.py, against TensorBoard)
 
 from __future__ import annotations
 
-from hispo_pl.benchmark.records import RunRecord
+from hispo_pl.benchmark.finished_runs import RunRecord
 from hispo_pl.benchmark.tables import memory_markdown
 from hispo_pl.results import StreamResults
 

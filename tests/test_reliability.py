@@ -209,15 +209,15 @@ def test_non_finite_data_is_refused_when_it_loads(tmp_path, monkeypatch, capsys)
 
 
 def test_a_non_finite_search_loss_stops_the_task(tiny_umaze, tmp_path, monkeypatch, capsys):
-    from hispo_pl.callbacks import search
+    from hispo_pl.callbacks import loss_search
 
-    real = search.race_subspace
+    real = loss_search.race_subspace
 
     def nan_race(*args, **kwargs):
         outcome = real(*args, **kwargs)
-        return search.RaceOutcome(outcome.survivors, outcome.losses * np.nan, None)
+        return loss_search.RaceOutcome(outcome.survivors, outcome.losses * np.nan, None)
 
-    monkeypatch.setattr(search, "race_subspace", nan_race)
+    monkeypatch.setattr(loss_search, "race_subspace", nan_race)
     assert main(tiny_stream_args("hispo", tmp_path, ["pointmaze-umaze-N[3]"])) == 2
     err = capsys.readouterr().err.strip()
     assert "the search at the end of task 1 scored L_curr = nan" in err

@@ -11,7 +11,7 @@ from matplotlib.image import imread
 from matplotlib.patches import Rectangle
 
 from hispo_pl.cli import main
-from hispo_pl.commands import expand_render_tasks
+from hispo_pl.cli_verbs import expand_render_tasks
 from hispo_pl.config import BackboneConfig
 from hispo_pl.envs.drawing import cell_rectangles
 from hispo_pl.envs.videogame.layouts import layout

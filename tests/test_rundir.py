@@ -31,7 +31,7 @@ def documented_modules() -> list[str]:
 
 def test_examples_are_found_in_every_room():
     names = documented_modules()
-    assert {"hispo_pl.rundir", "hispo_pl.callbacks.critic", "hispo_pl.iql"} <= set(names)
+    assert {"hispo_pl.rundir", "hispo_pl.callbacks.critic_pruning", "hispo_pl.iql"} <= set(names)
 
 
 @pytest.mark.parametrize("name", documented_modules())
@@ -113,7 +113,7 @@ def test_progress_of_an_older_run_gets_none_for_what_it_did_not_record():
 
 def test_committed_results_from_before_the_dataset_record_still_read():
     """results.json files written before runs recorded their datasets read and tabulate."""
-    from hispo_pl.benchmark.records import load_records
+    from hispo_pl.benchmark.finished_runs import load_records
 
     root = Path(__file__).resolve().parents[1] / "docs" / "results" / "pointmaze-1"
     old = RunDir(root / "ftn" / "seed0").stream_results()

@@ -19,7 +19,7 @@ from hispo_pl.stream_report import (
     chosen_hparams,
     custom_scalars_layout,
     custom_scalars_summary,
-    decisions_markdown,
+    run_decisions_markdown,
     stream_metrics,
     success_markdown,
     task_row_metrics,
@@ -59,7 +59,7 @@ def test_tables():
         "| T01 | 100 |  |",
         "| T02 | 98 | 50 |",
     ]
-    rows = decisions_markdown(
+    rows = run_decisions_markdown(
         [
             LossDecision(task=0, subspace="low", decision="first", l_curr=0.2, eps=0.1, anchors=1),
             LossDecision(
@@ -131,7 +131,7 @@ def test_each_kind_of_decision_gets_its_own_table():
     )
     critic = CriticDecision(task=1, subspace="policy", decision="keep", eps=0.1, anchors=2)
     critic.w_prev, critic.w_curr = 0.4, 0.52
-    tables = decisions_markdown([zero_shot, critic]).split("\n\n")
+    tables = run_decisions_markdown([zero_shot, critic]).split("\n\n")
     assert tables[0].splitlines()[0].startswith("| task | W_prev | W_curr | ε |")
     assert tables[1].splitlines()[2] == "| 2 | low | low 0.970 | 0.95 | zero-shot | 1 |"
     assert chosen_hparams({}, [zero_shot, critic]) == {"eps_policy": 0.1}  # no PAC tolerance

@@ -16,15 +16,28 @@ seed, mean ± std over seeds, table text) are pure functions; only the launchers
 processes. numpy only at import, so Ray workers start quickly; matplotlib and ray lazily.
 
 The package: ``plan`` (methods, seeds, commands, what is left to run), ``configs`` (settings
-read from the runs' own YAML files), ``launch`` (local processes or Ray), ``records`` (finished
-runs and their aggregation), ``tables`` and ``report`` (what is written), ``parser`` and
-``command`` (the command line). Every name is importable from ``hispo_pl.benchmark`` itself.
+read from the runs' own YAML files), ``launch`` (local processes or Ray), ``finished_runs``
+(finished runs and their aggregation), ``tables`` and ``report`` (what is written), ``parser``
+and ``command_line`` (the command line). Every name is importable from ``hispo_pl.benchmark``
+itself.
 """
 
 from __future__ import annotations
 
-from .command import main
+from .command_line import main
 from .configs import configured_max_steps, configured_value, datasets_needed, prepare_datasets
+from .finished_runs import (
+    MethodRow,
+    RunRecord,
+    aggregate,
+    export_runs,
+    finished_run_dirs,
+    format_mean_std,
+    load_records,
+    mean_std,
+    run_metrics,
+    scratch_method_for,
+)
 from .launch import TAIL_LINES, Reporter, execute_run, record_status, run_env, run_local, run_ray
 from .parser import build_parser, cpu_count
 from .plan import (
@@ -41,18 +54,6 @@ from .plan import (
     select_methods,
     stream_config_path,
 )
-from .records import (
-    MethodRow,
-    RunRecord,
-    aggregate,
-    export_runs,
-    finished_run_dirs,
-    format_mean_std,
-    load_records,
-    mean_std,
-    run_metrics,
-    scratch_method_for,
-)
 from .report import (
     plot_perf_vs_memory,
     unfinished_markdown,
@@ -61,7 +62,7 @@ from .report import (
 )
 from .tables import (
     critic_markdown,
-    decisions_markdown,
+    loss_decisions_markdown,
     runtime_csv,
     table_csv,
     table_markdown,
@@ -83,7 +84,6 @@ __all__ = [
     "configured_value",
     "datasets_needed",
     "critic_markdown",
-    "decisions_markdown",
     "execute_run",
     "export_runs",
     "finished_run_dirs",
@@ -91,6 +91,7 @@ __all__ = [
     "format_mean_std",
     "known_methods",
     "load_records",
+    "loss_decisions_markdown",
     "main",
     "mean_std",
     "parse_seeds",

@@ -7,8 +7,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..rundir import RunDir
+from .finished_runs import RunRecord
 from .grid import SWEEPS_DIR, Grid, chosen_value
-from .records import RunRecord
 from .tables import derived_footnote, derived_method, run_minutes
 
 PHASES = ("training", "evaluation", "search")

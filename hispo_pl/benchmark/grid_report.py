@@ -16,6 +16,7 @@ import numpy as np
 
 from ..io import atomic_write_text, real_folder, write_figure
 from ..metrics import METRICS
+from .finished_runs import MethodRow, RunRecord, aggregate, load_records, per_run_metrics
 from .grid import GRID_FILE, Grid
 from .grid_cost import cost_markdown, sweeps_markdown
 from .growth_report import (
@@ -26,7 +27,6 @@ from .growth_report import (
     memory_per_task_markdown,
     write_growth_figures,
 )
-from .records import MethodRow, RunRecord, aggregate, load_records, per_run_metrics
 from .tables import derived_footnote, derived_method
 from .transfer_report import PAC_METHOD, zero_shot_markdown
 
@@ -50,7 +50,7 @@ class Committed:
 
     def measured(self, stream: str) -> list[tuple[RunRecord, dict, str | None]]:
         """Each finished run of ``stream`` with its metrics and FWT reference
-        (:func:`~.records.per_run_metrics`); none if the stream has no folder."""
+        (:func:`~.finished_runs.per_run_metrics`); none if the stream has no folder."""
         if stream not in self._measured:
             folder = self.root / stream
             records = load_records(folder)[0] if folder.is_dir() else []

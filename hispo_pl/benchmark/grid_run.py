@@ -47,7 +47,7 @@ def export_cell(run_dir: Path, cell: Cell, root: Path, derived_from: Cell | None
 def estimated_minutes(cell: Cell, root: Path, streams: Sequence[str]) -> float | None:
     """A cell's likely wall minutes from committed runs: the mean of its method on its stream,
     else of its method on the other streams, else of every run on its stream."""
-    from .records import RunRecord
+    from .finished_runs import RunRecord
     from .tables import run_minutes
 
     def mean(pattern: str, where: Sequence[str]) -> float | None:

@@ -11,13 +11,13 @@ import numpy as np
 from ..errors import RunDirError
 from ..io import atomic_write_text, write_figure
 from ..rundir import RunDir
+from .finished_runs import MethodRow, RunRecord, aggregate, load_records
 from .markdown import cell
 from .plan import RUNS_DIR, planned_stream
-from .records import MethodRow, RunRecord, aggregate, load_records
 from .tables import (
     before_training_markdown,
     critic_markdown,
-    decisions_markdown,
+    loss_decisions_markdown,
     memory_markdown,
     runtime_csv,
     table_csv,
@@ -138,7 +138,7 @@ def write_report(out: Path, stream: str | None = None, figures: bool = True) -> 
         written.append(out / name)
     for name, text in (
         ("before_training.md", before_training_markdown(records, stream)),
-        ("decisions.md", decisions_markdown(records, stream)),
+        ("decisions.md", loss_decisions_markdown(records, stream)),
         ("critic.md", critic_markdown(records, stream)),
         ("memory.md", memory_markdown(records, stream)),
     ):

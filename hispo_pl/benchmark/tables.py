@@ -12,7 +12,7 @@ import numpy as np
 from ..metrics import METRIC, METRICS
 from ..results import CriticDecision, Decision, LossDecision, decisions_table
 from ..tasks import parse_task
-from .records import MethodRow, RunRecord, format_mean_std
+from .finished_runs import MethodRow, RunRecord, format_mean_std
 
 DERIVED = "†"  # marks a method some of whose runs were derived, not trained
 
@@ -121,7 +121,7 @@ def _runs(records: Sequence[RunRecord]) -> list[tuple[tuple[str, ...], list[Deci
 RUN_COLUMNS = (("method", "---"), ("seed", "---:"))
 
 
-def decisions_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
+def loss_decisions_markdown(records: Sequence[RunRecord], stream: str = "") -> str:
     """Every keep / prune decision of HiSPO's rule in every run: the losses the rule compared
     (held-out), the same points on training episodes, and how much ``L_curr`` still fell over
     the last steps of the task (the convergence diagnostic; above ε the budget decided)."""

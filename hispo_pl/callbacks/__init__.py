@@ -1,9 +1,9 @@
 """Callbacks that carry out the method (shipped as ``hispo_pl.callbacks``)."""
 
-from .critic import CriticEvaluation, CriticPruning
+from .critic_pruning import CriticEvaluation, CriticPruning
+from .loss_search import DirichletEvaluation
 from .networks import TaskNetworks, WeightConsolidation
 from .rollout import RolloutEvaluation
-from .search import DirichletEvaluation
 from .subspace import AnchorExtension, SubspacePruning
 from .transfer import ZeroShotTransfer
 

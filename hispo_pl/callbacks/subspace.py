@@ -1,7 +1,7 @@
 """HiSPO's callbacks: extend the subspaces at task start, and keep or prune the new anchors at
-task end after the search of :mod:`.search` (zero-shot transfer before a task:
+task end after the search of :mod:`.loss_search` (zero-shot transfer before a task:
 :mod:`.transfer`). Each hook is thin; the rules live in :mod:`hispo_pl.decisions`; how a
-decision is carried out and logged is shared with CSP's :mod:`.critic`."""
+decision is carried out and logged is shared with CSP's :mod:`.critic_pruning`."""
 
 from __future__ import annotations
 
@@ -17,9 +17,9 @@ from ..decisions import decided_by_budget, keep_previous, tolerance_problem
 from ..results import Decision, LossDecision, SearchResult, ZeroShotDecision, rule_metrics
 from ..rundir import RunDir, task_label
 from ..tasks import Family
+from .loss_search import DirichletEvaluation
 from .protocols import ExtendableSubspaces, PrunableSubspaces, require_subspaces
 from .rollout import RolloutEvaluation
-from .search import DirichletEvaluation
 from .state import KeyedState
 
 

@@ -14,8 +14,8 @@ from typing_extensions import override
 from ..decisions import pac_rate, zero_shot
 from ..nn import eval_mode
 from ..nn.simplex import sample_dirichlet
+from ..race import race_subspace, resolve_precision
 from ..results import ZeroShotDecision
-from ..search import race_subspace, resolve_precision
 from .protocols import TransferableSubspaces, require_subspaces
 from .state import KeyedState
 from .subspace import AnchorExtension, log_decisions

@@ -21,10 +21,10 @@ from torch import Tensor, nn
 
 from ..config import BackboneConfig, OptimConfig
 from ..nn import eval_mode
-from ..nn.critic import CriticConfig, SubspaceCritic
 from ..nn.hierarchy import high_input, high_input_dim
 from ..nn.simplex import sample_dirichlet
 from ..nn.subspace import AnchorInit
+from ..nn.subspace_critic import CriticConfig, SubspaceCritic
 from .cspo import CSPO, POLICY
 from .hispo import SubspacePolicy
 
@@ -48,7 +48,7 @@ class CriticScoredSubspace(SubspacePolicy, Protocol):
 class CSP(CSPO):
     """CSPO's subspace with CSP's critic: IQL values of the mixed policy choose the weights.
 
-    The critic (:class:`~hispo_pl.nn.critic.SubspaceCritic`): ``V(s, g, α)`` and twin
+    The critic (:class:`~hispo_pl.nn.subspace_critic.SubspaceCritic`): ``V(s, g, α)`` and twin
     ``Q(s, g, a, α)`` on the high policy's inputs (observation, position, goal and its
     features), rebuilt at the start of every task over the weights of the grown subspace and
     trained with IQL on the task's transitions (``--data.transitions true``): the reward is 1,
@@ -76,7 +76,7 @@ class CSP(CSPO):
 
     Args:
         alpha_sampling: ``dirichlet`` (CSP) or ``scores`` (CSPO's trained scores).
-        critic: overrides of :class:`~hispo_pl.nn.critic.CriticConfig` (hidden, expectile,
+        critic: overrides of :class:`~hispo_pl.nn.subspace_critic.CriticConfig` (hidden, expectile,
             discount, lr, polyak, success_radius).
         The others: as in :class:`~hispo_pl.modules.HiSPO`.
 

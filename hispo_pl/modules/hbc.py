@@ -16,8 +16,8 @@ from ..nn import fast
 from ..nn.hierarchy import Forward, HierarchicalPolicy
 from ..nn.mlp import GaussianPolicy
 from ..nn.program import ProgramOptimizer, TrainingProgram, lr_table
-from ..record import TaskRecord
 from ..rundir import task_label
+from ..task_record import TaskRecord
 from .checkpoints import check_finite_state, check_shapes_on_meta, first_line, read_checkpoint
 
 
@@ -77,7 +77,7 @@ class GoalConditionedBC(L.LightningModule):
                     hparams[key] = plain(config)
 
     def on_fit_start(self) -> None:
-        """A fresh :class:`~hispo_pl.record.TaskRecord` for the task about to train."""
+        """A fresh :class:`~hispo_pl.task_record.TaskRecord` for the task about to train."""
         self.task_record = TaskRecord()
 
     def losses(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:

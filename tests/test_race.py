@@ -8,7 +8,7 @@ import torch
 from hispo_pl.config import BackboneConfig
 from hispo_pl.modules.hispo import HiSPO
 from hispo_pl.nn.simplex import sample_dirichlet
-from hispo_pl.search import race_candidates, resolve_precision
+from hispo_pl.race import race_candidates, resolve_precision
 
 
 def _quadratic_score(target: torch.Tensor, noise: float = 0.0):

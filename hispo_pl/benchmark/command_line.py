@@ -14,9 +14,9 @@ from ..errors import Interrupted, RunDirError
 from ..io import atomic_write_text, make_folder
 from . import plan
 from .configs import datasets_needed, prepare_datasets
+from .finished_runs import export_runs, refuse_foreign_export
 from .launch import Reporter, run_env, run_local, run_ray
 from .parser import build_parser, cpu_count
-from .records import export_runs, refuse_foreign_export
 from .report import write_report
 
 

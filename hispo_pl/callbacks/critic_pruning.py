@@ -20,9 +20,9 @@ from ..decisions import (
     tolerance_problem,
 )
 from ..nn import eval_mode
+from ..race import RaceOutcome, race_candidates, race_subspace
 from ..results import CriticDecision, CriticSearchResult
 from ..rundir import task_label
-from ..search import RaceOutcome, race_candidates, race_subspace
 from .protocols import CriticScoredSubspaces, PrunableSubspaces, require, require_subspaces
 from .state import KeyedState
 from .subspace import apply_decision, check_task_end_order, decide_subspaces

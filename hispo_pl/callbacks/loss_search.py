@@ -1,6 +1,6 @@
 """HiSPO's search at a task's end (:class:`DirichletEvaluation`): the best weights of the
 previous subspace and of the grown one, which :class:`~hispo_pl.callbacks.SubspacePruning`
-decides between. The candidates are raced by :mod:`hispo_pl.search`."""
+decides between. The candidates are raced by :mod:`hispo_pl.race`."""
 
 from __future__ import annotations
 
@@ -16,9 +16,9 @@ from ..decisions import extended_subspace_candidates, previous_subspace_candidat
 from ..errors import TrainingDivergedError
 from ..nn import eval_mode
 from ..progress import Progress
+from ..race import RaceOutcome, race_subspace, resolve_precision
 from ..results import SearchResult
 from ..rundir import RunDir, task_label
-from ..search import RaceOutcome, race_subspace, resolve_precision
 from .protocols import SearchableSubspaces, require_subspaces
 from .state import KeyedState
 
@@ -55,7 +55,7 @@ def window_start(max_steps: int, window: float) -> int | None:
 class DirichletEvaluation(KeyedState):
     """At the end of a task, search the previous anchors of each subspace for the best weights.
 
-    ``n_candidates`` Dirichlet(1) draws are raced (:func:`hispo_pl.search.race_candidates`):
+    ``n_candidates`` Dirichlet(1) draws are raced (:func:`hispo_pl.race.race_candidates`):
     all are ranked on a probe of ``probe_samples`` samples, and the ``survivors`` best are
     scored on ``n_batches`` batches of the current task's held-out episodes (see
     ``TaskDataModule.holdout``), the same batches for every candidate (common random numbers),
