@@ -12,7 +12,7 @@ from .data.sampler import position_velocity
 from .envs import agent_flipped, make_env
 from .envs.family import family_behaviour
 from .nn import eval_mode
-from .progress import Progress
+from .progress import ProgressPrinter
 from .tasks import Task, agent_position, parse_task
 
 PolicyFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
@@ -72,11 +72,11 @@ class RolloutEvaluator:
         self.options = reset_options(self.task, self.envs[0], episodes, seed)
 
     def run(
-        self, policy: PolicyFn, progress: bool | Progress = False, record: bool = False
+        self, policy: PolicyFn, progress: bool | ProgressPrinter = False, record: bool = False
     ) -> RolloutResult:
         """Success, lengths and flips of every episode; ``record`` also keeps each episode's
         positions (for pictures). One policy call per step for all running episodes.
-        ``progress``: show it (:class:`~hispo_pl.progress.Progress`), or count the episodes
+        ``progress``: show it (:class:`~hispo_pl.progress.ProgressPrinter`), or count the episodes
         into a given one (several evaluations under one count)."""
         successes = np.zeros(self.episodes, dtype=bool)
         flips = np.zeros(self.episodes, dtype=bool)
@@ -91,9 +91,11 @@ class RolloutEvaluator:
         waiting = iter(range(self.episodes))
         running: list[int | None] = [None] * len(self.envs)  # episode of each env
         obs: list[dict] = [{}] * len(self.envs)
-        own = not isinstance(progress, Progress)
+        own = not isinstance(progress, ProgressPrinter)
         bar = (
-            Progress(f"eval {self.task}", self.episodes, "episodes", progress) if own else progress
+            ProgressPrinter(f"eval {self.task}", self.episodes, "episodes", progress)
+            if own
+            else progress
         )
 
         def start_next(slot: int) -> None:

@@ -36,14 +36,14 @@ def tenth_marks(total: int) -> list[int]:
     return sorted({max(1, -(-total * i // 10)) for i in range(1, 11)})
 
 
-class Progress:
+class ProgressPrinter:
     """Counts ``total`` units of work under ``label``; a bar on a terminal, else a line at each
     tenth (``[hispo-pl] eval pointmaze-umaze-N: 30/100 episodes (30 %), 4s``). Disabled, it
     prints nothing. Use as a context manager, or call :meth:`close`.
 
     Example::
 
-        with Progress(f"collecting {name}", episodes, "episodes") as collecting:
+        with ProgressPrinter(f"collecting {name}", episodes, "episodes") as collecting:
             for k in range(episodes):
                 ...  # one episode
                 collecting.update()
@@ -105,7 +105,7 @@ class Progress:
             self._bar.close()
             self._bar = None
 
-    def __enter__(self) -> Progress:
+    def __enter__(self) -> ProgressPrinter:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -39,19 +39,19 @@ def _progress_lines(text: str, label: str) -> list[tuple[int, int]]:
 def test_progress_in_a_pipe_is_a_line_every_tenth():
     import io
 
-    from hispo_pl.progress import Progress, tenth_marks
+    from hispo_pl.progress import ProgressPrinter, tenth_marks
 
     assert tenth_marks(100) == list(range(10, 101, 10))
     assert tenth_marks(4) == [1, 2, 3, 4] and tenth_marks(0) == []
     out = io.StringIO()
-    with Progress("eval x", 95, "episodes", bar=False, file=out) as done:
+    with ProgressPrinter("eval x", 95, "episodes", bar=False, file=out) as done:
         for _ in range(95):
             done.update()
     lines = _progress_lines(out.getvalue(), "eval x")
     assert [d for d, _ in lines] == tenth_marks(95) and len(lines) == 10
     assert "\r" not in out.getvalue()
     quiet = io.StringIO()
-    with Progress("eval x", 5, enabled=False, bar=False, file=quiet) as done:
+    with ProgressPrinter("eval x", 5, enabled=False, bar=False, file=quiet) as done:
         done.update(5)
     assert quiet.getvalue() == ""
 

@@ -15,7 +15,7 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 from ..io import named_errors, open_append
-from ..progress import Progress
+from ..progress import ProgressPrinter
 from ..rundir import RunDir
 from .plan import PlannedRun
 
@@ -73,11 +73,11 @@ def run_env(num_threads: int) -> dict[str, str]:
 
 class Reporter:
     """Progress over runs (skipped ones count as done: a bar on a terminal, a line at each
-    tenth in a log, :class:`~hispo_pl.progress.Progress`) and a printed line per finished or
+    tenth in a log, :class:`~hispo_pl.progress.ProgressPrinter`) and a printed line per finished or
     failed run; a failure shows its log path and the tail of the log."""
 
     def __init__(self, total: int, done: int = 0) -> None:
-        self.bar = Progress("benchmark", total, "runs")
+        self.bar = ProgressPrinter("benchmark", total, "runs")
         self.bar.update(done)
         self._write = self.bar.write
         self.failed: list[PlannedRun] = []

@@ -15,7 +15,7 @@ from typing_extensions import override
 from ..decisions import extended_subspace_candidates, previous_subspace_candidates
 from ..errors import TrainingDivergedError
 from ..nn import eval_mode
-from ..progress import Progress
+from ..progress import ProgressPrinter
 from ..race import RaceOutcome, race_subspace, resolve_precision
 from ..results import SearchResult
 from ..rundir import RunDir, task_label
@@ -212,7 +212,7 @@ class DirichletEvaluation(KeyedState):
         scored = len(batches), len(train_batches or [])
         total = sum(self._batches_scored(module.n_anchors(n), prev, *scored) for n in names)
         label = f"task {task_label(module.task_index)}: searching {', '.join(names)}"
-        counter = Progress(label, total, "batches", enabled=progress)
+        counter = ProgressPrinter(label, total, "batches", enabled=progress)
         with module.task_record.timed("search"), eval_mode(module), counter:
             for name in names:  # a transferred one (zero-shot) has nothing trained to compare
 

@@ -8,7 +8,7 @@ from typing_extensions import override
 
 from ..evaluation import RolloutEvaluator, RolloutResult, module_policy
 from ..nn import eval_mode
-from ..progress import Progress
+from ..progress import ProgressPrinter
 from ..rundir import task_label
 from ..tasks import Task, parse_task
 from .state import KeyedState
@@ -56,7 +56,7 @@ class RolloutEvaluation(KeyedState):
         pl_module: L.LightningModule,
         task_index: int | None,
         record: bool = False,
-        progress: bool | Progress = False,
+        progress: bool | ProgressPrinter = False,
     ) -> RolloutResult:
         task = parse_task(task)
         with pl_module.task_record.timed("evaluation"), eval_mode(pl_module):
@@ -93,7 +93,7 @@ class RolloutEvaluation(KeyedState):
     def _evaluate_stream(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         i, tasks = pl_module.task_index, trainer.datamodule.tasks
         label = f"task {task_label(i)}/{len(tasks)}: evaluating {len(tasks)} tasks"
-        with Progress(label, len(tasks) * self.episodes, "episodes") as done:
+        with ProgressPrinter(label, len(tasks) * self.episodes, "episodes") as done:
             results = [
                 self._run(task, pl_module, j, record=j == i, progress=done)
                 for j, task in enumerate(tasks)

@@ -25,7 +25,7 @@ from ..io import (
     real_folder,
     remove_tree,
 )
-from ..progress import Progress
+from ..progress import ProgressPrinter
 from ..tasks import Task, parse_task
 from .datasets import (
     NAMESPACE,
@@ -243,7 +243,7 @@ def _generate(task, episodes, seed, noise, overwrite, progress, expert_weights) 
     expert = make_expert(name, env, expert_weights)
     staging = _scratch_folder(".staging", f"{name}-seed{seed}-noise{noise}")
     ok = failed = flips = kept_steps = 0
-    with Progress(f"collecting {name}", episodes, "episodes", progress) as collecting:
+    with ProgressPrinter(f"collecting {name}", episodes, "episodes", progress) as collecting:
         for k in range(episodes):
             path = staging / f"ep_{k:05d}.npz"
             if not path.exists():
