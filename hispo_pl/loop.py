@@ -23,12 +23,12 @@ from pathlib import Path
 import lightning as L
 import numpy as np
 
+from .callbacks.protocols import WeightedSubspaces
 from .console import lightning_notices_once, quiet_lightning_notices, say, task_header, task_summary
 from .data.datamodule import TaskDataModule
 from .errors import Interrupted, ResumableWork
 from .io import atomic_save, files_in_log_dir
 from .metrics import continual_metrics, memory_ratio, module_bytes, results_row_table
-from .modules.hispo import SubspacePolicy
 from .results import Progress, StreamResults
 from .resume import MissingCheckpointError, RunDirLock, TaskCheckpoint, resume_progress
 from .rundir import RunDir, task_label
@@ -293,7 +293,7 @@ class ContinualLoop:
             table=results_row_table(R),
             mem_per_task=progress.mem_per_task,
         )
-        if isinstance(self.module, SubspacePolicy):
+        if isinstance(self.module, WeightedSubspaces):
             names = self.module.subspace_names
             results.anchors = {n: self.module.n_anchors(n) for n in names}
             results.alphas = {n: self.module.task_alphas(n).tolist() for n in names}

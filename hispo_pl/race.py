@@ -97,8 +97,9 @@ def race_subspace(
     precision: Literal["32", "bf16"] = "32",
     tick: Callable[[], None] | None = None,
 ) -> RaceOutcome:
-    """:func:`race_candidates` over weight vectors of one subspace of ``module`` (a
-    :class:`~hispo_pl.modules.SubspacePolicy`), scored by its ``score_alphas``."""
+    """:func:`race_candidates` over weight vectors of one subspace of ``module`` (its
+    :class:`~hispo_pl.callbacks.protocols.SearchableSubspaces`), scored by its
+    ``score_alphas``."""
 
     def score(alphas: Tensor, batch: dict[str, Tensor]) -> Tensor:
         return module.score_alphas(subspace, alphas, batch, loss=loss, precision=precision)

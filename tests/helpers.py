@@ -12,10 +12,20 @@ from types import ModuleType
 import lightning as L
 import torch
 
+from hispo_pl.callbacks import protocols
 from hispo_pl.config import BackboneConfig
 from hispo_pl.modules.hispo import HiSPO
 
 TIMES = ("wall_time_s", "phase_time_s")  # what two runs of the same work may differ in
+
+SUBSPACE_PROTOCOLS = (
+    protocols.ExtendableSubspaces,
+    protocols.SearchableSubspaces,
+    protocols.PrunableSubspaces,
+    protocols.TransferableSubspaces,
+    protocols.WeightedSubspaces,
+)
+"""What HiSPO's callbacks and the loop need of a module with subspaces (CSPO and HiLOW too)."""
 
 
 def nested_equal(a, b) -> bool:

@@ -10,12 +10,13 @@ import torch
 from helpers import fit_tiny_stream
 
 from hispo_pl.callbacks import CriticEvaluation, CriticPruning
+from hispo_pl.callbacks.protocols import CriticScoredSubspaces
 from hispo_pl.callbacks.subspace import check_task_end_order
 from hispo_pl.config import BackboneConfig
 from hispo_pl.decisions import critic_extends
 from hispo_pl.iql import expectile_loss, goal_reward, polyak_update, td_loss, td_target
 from hispo_pl.metrics import module_bytes
-from hispo_pl.modules import CSP, CSPO, CriticScoredSubspace
+from hispo_pl.modules import CSP, CSPO
 from hispo_pl.modules.hbc import GoalConditionedBC
 from hispo_pl.nn.hierarchy import high_input, low_input
 from hispo_pl.nn.subspace_critic import CriticConfig, SubspaceCritic
@@ -156,7 +157,7 @@ def _grown(seed: int = 0) -> CSP:
 
 def test_a_fresh_critic_per_task_over_the_grown_subspace_left_out_of_mem():
     m = _module()
-    assert isinstance(m, CriticScoredSubspace) and m.critic.alpha_dim == 1
+    assert isinstance(m, CriticScoredSubspaces) and m.critic.alpha_dim == 1
     policy_only = module_bytes(CSPO(**SIZES))
     assert module_bytes(m) == policy_only  # the critic is stored, not counted
     assert module_bytes(m.critic) > 0 and any(k.startswith("critic.") for k in m.state_dict())
@@ -242,7 +243,7 @@ def test_critic_pruning_applies_the_rule(w_curr, decision, anchors, alpha):
 
 
 def test_critic_callbacks_check_the_module_and_their_order():
-    with pytest.raises(TypeError, match="CriticScoredSubspace"):
+    with pytest.raises(TypeError, match="CriticScoredSubspaces protocol"):
         CriticEvaluation().setup(None, CSPO(**SIZES), "fit")
     pruning = CriticPruning()
     with pytest.raises(ValueError, match="CriticEvaluation callback listed before"):

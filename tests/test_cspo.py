@@ -10,7 +10,14 @@ from pathlib import Path
 
 import pytest
 import torch
-from helpers import HISPO_SIZES, quiet_trainer, random_batch, tiny_hispo, tiny_stream_args
+from helpers import (
+    HISPO_SIZES,
+    SUBSPACE_PROTOCOLS,
+    quiet_trainer,
+    random_batch,
+    tiny_hispo,
+    tiny_stream_args,
+)
 from torch.utils.data import DataLoader
 
 import hispo_pl.modules.hispo as hispo_mod
@@ -20,7 +27,7 @@ from hispo_pl.config import BackboneConfig
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.cspo import CSPO
 from hispo_pl.modules.hbc import HBC, GoalConditionedBC
-from hispo_pl.modules.hispo import HiSPO, SubspacePolicy, training_alphas
+from hispo_pl.modules.hispo import HiSPO, training_alphas
 from hispo_pl.nn.hierarchy import high_input, low_input
 from hispo_pl.nn.mlp import gaussian_nll
 from hispo_pl.results import SearchResult
@@ -73,7 +80,7 @@ def _manual_act(module: HiSPO, alpha: torch.Tensor, seed: int = 3) -> torch.Tens
 
 def test_one_subspace_named_policy_with_one_score_and_one_row_of_weights():
     m = _module()
-    assert isinstance(m, SubspacePolicy)
+    assert all(isinstance(m, p) for p in SUBSPACE_PROTOCOLS)
     assert m.subspace_names == ("policy",)
     assert m.n_anchors("policy") == 1
     assert [m.policies[level].net.n_anchors for level in LEVELS] == [1, 1]

@@ -7,13 +7,21 @@ from __future__ import annotations
 import pytest
 import torch
 import torch.nn.functional as F
-from helpers import HISPO_SIZES, act_on, grow_three_tasks, quiet_trainer, random_batch, tiny_hispo
+from helpers import (
+    HISPO_SIZES,
+    SUBSPACE_PROTOCOLS,
+    act_on,
+    grow_three_tasks,
+    quiet_trainer,
+    random_batch,
+    tiny_hispo,
+)
 from torch.utils.data import DataLoader
 
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.hbc import GoalConditionedBC
 from hispo_pl.modules.hilow import HiLOW
-from hispo_pl.modules.hispo import SUBSPACES, HiSPO, SubspacePolicy
+from hispo_pl.modules.hispo import SUBSPACES, HiSPO
 from hispo_pl.nn.lowrank import LowRankSubspaceLinear, low_rank_
 from hispo_pl.nn.simplex import sample_dirichlet
 from hispo_pl.nn.subspace import SubspaceLinear, subspace_layers
@@ -197,7 +205,7 @@ def _perturb_newest(module: HiLOW, subspace: str, seed: int = 1, scale: float = 
 
 def test_every_linear_layer_is_low_rank_and_the_module_is_a_subspace_policy():
     m = _module()
-    assert isinstance(m, SubspacePolicy) and m.subspace_names == SUBSPACES
+    assert all(isinstance(m, p) for p in SUBSPACE_PROTOCOLS) and m.subspace_names == SUBSPACES
     for name in SUBSPACES:
         layers = list(subspace_layers(m.policies[name].net))
         assert sum(isinstance(layer, LowRankSubspaceLinear) for layer in layers) == 4

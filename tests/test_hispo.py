@@ -7,10 +7,10 @@ import copy
 
 import pytest
 import torch
-from helpers import FLOAT32_REORDERED, perturb_newest, random_batch, tiny_hispo
+from helpers import FLOAT32_REORDERED, SUBSPACE_PROTOCOLS, perturb_newest, random_batch, tiny_hispo
 
 from hispo_pl.config import BackboneConfig
-from hispo_pl.modules.hispo import SUBSPACES, HiSPO, SubspacePolicy, training_alphas
+from hispo_pl.modules.hispo import SUBSPACES, HiSPO, training_alphas
 
 
 def _params_of_anchor(module: HiSPO, subspace: str, k: int) -> set[str]:
@@ -23,7 +23,7 @@ def _params_of_anchor(module: HiSPO, subspace: str, k: int) -> set[str]:
 
 def test_fresh_module_has_one_anchor_per_subspace_and_is_a_subspace_policy():
     m = tiny_hispo()
-    assert isinstance(m, SubspacePolicy)
+    assert all(isinstance(m, p) for p in SUBSPACE_PROTOCOLS)
     assert m.subspace_names == SUBSPACES == ("high", "low")
     for name in SUBSPACES:
         assert m.n_anchors(name) == 1

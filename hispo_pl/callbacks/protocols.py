@@ -29,6 +29,17 @@ class SubspaceNames(Protocol):
 
 
 @runtime_checkable
+class WeightedSubspaces(Protocol):
+    """What the loop writes of a module with subspaces into ``results.json``: each subspace's
+    anchors and the anchor weights of every task so far."""
+
+    subspace_names: tuple[str, ...]
+
+    def n_anchors(self, subspace: str) -> int: ...
+    def task_alphas(self, subspace: str) -> Tensor: ...
+
+
+@runtime_checkable
 class ExtendableSubspaces(SubspaceNames, Protocol):
     """What :class:`~hispo_pl.callbacks.AnchorExtension` needs: a new anchor per subspace."""
 

@@ -1,11 +1,11 @@
 """LightningModules: the backbones and the continual methods built on them."""
 
 from .columns import GrowingPolicy, NetworkPerTask
-from .csp import CSP, CriticScoredSubspace
+from .csp import CSP
 from .cspo import CSPO
 from .hbc import BC, HBC, GoalConditionedBC
 from .hilow import HiLOW
-from .hispo import HiSPO, SubspacePolicy
+from .hispo import HiSPO
 from .pnn import PNN
 from .regularized import ConsolidatingPolicy, RegularizedFineTuning
 
@@ -13,7 +13,6 @@ __all__ = [
     "BC",
     "CSP",
     "CSPO",
-    "CriticScoredSubspace",
     "ConsolidatingPolicy",
     "GoalConditionedBC",
     "GrowingPolicy",
@@ -23,5 +22,4 @@ __all__ = [
     "NetworkPerTask",
     "PNN",
     "RegularizedFineTuning",
-    "SubspacePolicy",
 ]

@@ -14,7 +14,7 @@ cannot tell good anchor weights from bad ones.
 from __future__ import annotations
 
 import math
-from typing import ClassVar, Literal, Protocol, runtime_checkable
+from typing import ClassVar, Literal
 
 import torch
 from torch import Tensor, nn
@@ -26,23 +26,8 @@ from ..nn.simplex import sample_dirichlet
 from ..nn.subspace import AnchorInit
 from ..nn.subspace_critic import CriticConfig, SubspaceCritic
 from .cspo import CSPO, POLICY
-from .hispo import SubspacePolicy
 
 AlphaSampling = Literal["dirichlet", "scores"]
-
-
-@runtime_checkable
-class CriticScoredSubspace(SubspacePolicy, Protocol):
-    """What the critic callbacks need from a module, on top of :class:`SubspacePolicy`."""
-
-    def critic_values(self, alphas: Tensor, batch: dict[str, Tensor]) -> Tensor: ...
-    def critic_diagnostic(
-        self,
-        alpha: Tensor,
-        batch: dict[str, Tensor],
-        n_actions: int,
-        generator: torch.Generator | None = None,
-    ) -> dict[str, float]: ...
 
 
 class CSP(CSPO):

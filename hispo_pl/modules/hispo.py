@@ -3,13 +3,14 @@
 The module owns everything inference needs: the anchors of both subspaces, the trainable score
 vector of the current task, and the anchor weights (alpha) chosen for every task so far, kept in
 registered buffers. A checkpoint alone therefore acts on every task seen. Growing, searching and
-pruning are decided by callbacks through the :class:`SubspacePolicy` protocol.
+pruning are decided by callbacks, each through the small protocol of what it needs
+(:mod:`hispo_pl.callbacks.protocols`).
 """
 
 from __future__ import annotations
 
 from contextlib import ExitStack
-from typing import ClassVar, Literal, Protocol, runtime_checkable
+from typing import ClassVar, Literal
 
 import torch
 import torch.nn.functional as F
@@ -24,28 +25,6 @@ from .hbc import GoalConditionedBC
 
 SUBSPACES = ("high", "low")
 Precision = Literal["32", "bf16"]
-
-
-@runtime_checkable
-class SubspacePolicy(Protocol):
-    """What the HiSPO callbacks need from a module (checked in their ``setup``)."""
-
-    subspace_names: tuple[str, ...]
-    task_index: int
-
-    def n_anchors(self, subspace: str) -> int: ...
-    def task_alphas(self, subspace: str) -> Tensor: ...
-    def add_anchor(self, subspace: str, default_init: AnchorInit = "mean") -> None: ...
-    def prune_last_anchor(self, subspace: str) -> None: ...
-    def current_alpha(self, subspace: str) -> Tensor: ...
-    def score_alphas(self, subspace: str, alphas: Tensor, batch: dict[str, Tensor]) -> Tensor: ...
-    def set_task_alpha(self, task: int, subspace: str, alpha: Tensor) -> None: ...
-    def transfer(self, subspace: str, alpha: Tensor) -> None: ...
-    def transferred(self, subspace: str) -> bool: ...
-    def grown(self, subspace: str) -> bool: ...
-    def prediction_distances(
-        self, subspace: str, alpha: Tensor, batch: dict[str, Tensor]
-    ) -> dict[str, Tensor]: ...
 
 
 class SubspaceGaussianPolicy(GaussianPolicy):
@@ -135,7 +114,7 @@ class HiSPO(GoalConditionedBC):
         """The subspace whose weights the policy ``policy`` (high or low) is mixed with."""
         return next(s for s, held in self.subspace_policies.items() if policy in held)
 
-    # --- the SubspacePolicy protocol ----------------------------------------------------
+    # --- what the callbacks talk to -----------------------------------------------------
 
     def n_anchors(self, subspace: str) -> int:
         return self._nets(subspace)[0].n_anchors
