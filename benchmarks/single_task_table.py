@@ -43,6 +43,7 @@ from hispo_pl.benchmark import (
     run_env,
     run_local,
 )
+from hispo_pl.results import TaskFitResult
 from hispo_pl.rundir import RunDir
 from hispo_pl.tasks import FAMILIES, parse_task
 
@@ -155,8 +156,8 @@ def progress_lines(total: int, done: int) -> Callable[[PlannedRun, dict], None]:
 
 
 def collect_results(out: Path, settings: list[Setting], tasks: list[str]) -> dict:
-    """(setting name, task) -> the result dicts of every finished seed under ``out``."""
-    by_name: dict[str, list[dict]] = {}
+    """(setting name, task) -> the results of every finished seed under ``out``."""
+    by_name: dict[str, list[TaskFitResult]] = {}
     for path in finished_run_dirs(out, RunDir.RESULT):
         by_name.setdefault(path.parent.name, []).append(RunDir(path).read_result())
     return {
@@ -183,12 +184,12 @@ def write_tables(out: Path, settings: list[Setting], tasks: list[str], results: 
             if not runs:
                 cells.append("–")
                 continue
-            success = [100 * r["success"] for r in runs]
-            length = statistics.fmean(r["episode_length"] for r in runs)
+            success = [100 * r.success for r in runs]
+            length = statistics.fmean(r.episode_length for r in runs)
             spread = f" ± {statistics.pstdev(success):.1f}" if len(runs) > 1 else ""
             cells.append(f"{statistics.fmean(success):.1f}{spread} ({length:.0f})")
-            steps, seeds = str(int(runs[0]["step"])), str(len(runs))
-            rows += [{"task": task, "setting": name, **r} for r in runs]
+            steps, seeds = str(int(runs[0].step)), str(len(runs))
+            rows += [{"task": task, "setting": name, **r.to_json()} for r in runs]
         lines.append(f"| {task} | " + " | ".join(cells) + f" | {seeds} | {steps} |")
     table = "\n".join(lines) + "\n"
     (out / "table.md").write_text(table)
@@ -219,7 +220,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     if not args.report_only:
         runs = plan_runs(settings, tasks, seeds, args.out, extra)
-        todo = pending_runs(runs, stream=None, made_on=provenance() | checkout_commit())
+        todo = pending_runs(runs, stream=None, made_on=provenance().merged(checkout_commit()))
         report = progress_lines(len(runs), len(runs) - len(todo))
         run_local(todo, args.workers, report, run_env(1))
     results = collect_results(args.out, settings, tasks)

@@ -29,6 +29,7 @@ from .io import replace_link
 from .methods import all_knobs
 from .modules.hbc import GoalConditionedBC
 from .presets import apply_preset, given_keys, kept_note
+from .results import TaskFitResult
 from .run_checks import apply_method_knobs, validate_config
 from .rundir import RunDir
 from .tasks import unseen_variant_tasks, unseen_variants_message
@@ -255,15 +256,16 @@ def write_task_result(log_dir: str, model, task, seconds: float, used=None) -> N
     :class:`~hispo_pl.data.datasets.DatasetUse`), for tables
     (``benchmarks/single_task_table.py``) without parsing TensorBoard files."""
     record = model.task_record
-    result = {
-        "method": type(model).__name__,
-        "task": str(task),
-        **({"dataset": used.dataset, "dataset_episodes": used.episodes} if used else {}),
-        "episodes": record.episodes,
-        "seconds": round(seconds, 1),
+    result = TaskFitResult(
+        method=type(model).__name__,
+        task=str(task),
+        dataset=used.dataset if used else None,
+        dataset_episodes=used.episodes if used else None,
+        episodes=record.episodes,
+        seconds=round(seconds, 1),
         **{k: float(v) for k, v in record.evaluation.items()},
-        "curve": [{k: float(v) for k, v in point.items()} for point in record.curve],
-    }
+        curve=[{k: float(v) for k, v in point.items()} for point in record.curve],
+    )
     RunDir(log_dir).write_result(result)
 
 

@@ -34,7 +34,7 @@ import numpy as np
 
 from .errors import RunDirError
 from .io import atomic_save, atomic_write_text, named_errors, open_append, real_folder
-from .results import Decision, Progress, StreamResults
+from .results import Decision, LaunchRecord, Progress, StreamResults, TaskFitResult
 
 
 def task_label(index: int) -> int:
@@ -307,23 +307,35 @@ class RunDir:
                 out[(_task_index(label), subspace)] = {k: data[k] for k in data.files}
         return out
 
-    def read_result(self) -> dict:
-        """A single-task fit's ``result.json``: its final evaluation (``success``,
-        ``episode_length``, ``flip_rate``, ``step``), the method, task, dataset and seconds,
-        and its learning ``curve``."""
-        return read_json_object(self.result_file, "a single-task fit's evaluation")
+    def read_result(self) -> TaskFitResult:
+        """A single-task fit's ``result.json``.
 
-    def write_result(self, result: dict) -> None:
-        atomic_write_text(self.result_file, json.dumps(result, indent=2) + "\n")
+        Raises:
+            RunDirError: the file is not a JSON object with every key of a result."""
+        holds = "a single-task fit's evaluation"
+        record = read_json_object(self.result_file, holds)
+        try:
+            return TaskFitResult.from_json(record)
+        except KeyError as err:
+            raise RunDirError(
+                f"{self.result_file} has {err.args[0]}; it should hold {holds}"
+            ) from None
 
-    def read_run_record(self) -> dict:
-        """The benchmark's ``run.json`` (empty for a run it did not launch)."""
+    def write_result(self, result: TaskFitResult) -> None:
+        atomic_write_text(self.result_file, json.dumps(result.to_json(), indent=2) + "\n")
+
+    def read_run_record(self) -> LaunchRecord:
+        """The benchmark's ``run.json`` (empty for a run it did not launch).
+
+        Raises:
+            RunDirError: the file is not a JSON object."""
         if not self.run_record_file.exists():
-            return {}
-        return read_json_object(self.run_record_file, "the benchmark's record of the run")
+            return LaunchRecord()
+        holds = "the benchmark's record of the run"
+        return LaunchRecord.from_json(read_json_object(self.run_record_file, holds))
 
-    def write_run_record(self, record: dict) -> None:
-        atomic_write_text(self.run_record_file, json.dumps(record, indent=1))
+    def write_run_record(self, record: LaunchRecord) -> None:
+        atomic_write_text(self.run_record_file, json.dumps(record.to_json(), indent=1))
 
 
 def _decision(line: str) -> Decision | None:

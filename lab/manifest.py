@@ -12,6 +12,7 @@ from pathlib import Path
 
 from hispo_pl.benchmark.markdown import cell, code_cell
 from hispo_pl.io import atomic_write_text
+from hispo_pl.results import LaunchRecord
 from hispo_pl.rundir import RunDir
 
 # the streams' reference runs (and the grid's reports over them); every other folder of
@@ -63,13 +64,13 @@ def machine_text(machine: dict | None) -> str:
     return ", ".join(p for p in parts if p)
 
 
-def commit_text(record: dict) -> str:
+def commit_text(record: LaunchRecord) -> str:
     """The commit a run was made on (short, ``+dirty`` kept), else the one that committed it."""
-    if record.get("commit"):
-        made = str(record["commit"])
+    if record.commit:
+        made = str(record.commit)
         return f"{made[:7]}{'+dirty' if made.endswith('+dirty') else ''}"
-    if record.get("committed_in"):
-        return f"{record['committed_in']} (committed)"
+    if record.committed_in:
+        return f"{record.committed_in} (committed)"
     return "not recorded"
 
 
@@ -78,14 +79,13 @@ def run_provenance(run_dir: Path, folder: Path) -> Provenance:
     run = RunDir(run_dir)
     record = run.read_run_record()
     name = run_dir.relative_to(folder).as_posix()
-    if record.get("argv") and isinstance(record["argv"], list):
-        command = code_cell(fit_command(record["argv"]))
+    if record.argv and isinstance(record.argv, list):
+        command = code_cell(fit_command(record.argv))
     elif run.config_file.exists():
         command = f"not recorded; its settings: {code_cell(f'{name}/{run.config_file.name}')}"
     else:
         command = "not recorded"
-    machine = record.get("machine")
-    machine = machine_text(machine if isinstance(machine, dict) else None)
+    machine = machine_text(record.machine if isinstance(record.machine, dict) else None)
     return Provenance(name, commit_text(record), command, machine)
 
 

@@ -14,7 +14,8 @@ from helpers import BENCH_TINY, BENCH_TINY_OVERRIDES, benchmark_config_dir
 
 from hispo_pl import benchmark as bm
 from hispo_pl.cli import main as cli_main
-from hispo_pl.results import Decision, StreamResults
+from hispo_pl.results import Decision, LaunchRecord, StreamResults
+from hispo_pl.rundir import RunDir
 
 ROOT = Path(__file__).resolve().parents[1]
 NAN = None  # JSON's null above the diagonal of R
@@ -191,7 +192,9 @@ def test_mean_std_and_format():
 
 def _records() -> list[bm.RunRecord]:
     return [
-        bm.RunRecord("scn", 0, _results([0.5, 0.9], [0.1, 0.9], mem=2.0), {"steps_per_task": 5}),
+        bm.RunRecord(
+            "scn", 0, _results([0.5, 0.9], [0.1, 0.9], mem=2.0), LaunchRecord(steps_per_task=5)
+        ),
         bm.RunRecord("scn", 1, _results([0.7, 0.9], [0.1, 0.9], mem=2.0)),
         bm.RunRecord(
             "hispo", 0, _results([0.8, 0.6], [0.8, 0.6], 1.5, {"high": 2, "low": 1}, minutes=2)
@@ -244,8 +247,8 @@ def test_write_report_from_disk_and_report_only(tmp_path, capsys):
         run_dir = tmp_path / "runs" / r.method / f"seed{r.seed}"
         run_dir.mkdir(parents=True)
         (run_dir / "results.json").write_text(json.dumps(r.results.to_json()))
-        if r.meta:
-            (run_dir / "run.json").write_text(json.dumps(r.meta))
+        if r.meta.to_json():
+            RunDir(run_dir).write_run_record(r.meta)
     (tmp_path / "runs/hispo/seed7").mkdir()  # unfinished: no results.json, ignored
     assert [(r.method, r.seed) for r in bm.load_records(tmp_path)[0]] == [
         ("bc-ft1", 0),

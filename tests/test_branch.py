@@ -23,7 +23,7 @@ from hispo_pl.benchmark import branch
 from hispo_pl.benchmark.configs import saved_setting
 from hispo_pl.cli import main as cli_main
 from hispo_pl.errors import RunDirError
-from hispo_pl.results import LossDecision
+from hispo_pl.results import LaunchRecord, LossDecision
 from hispo_pl.rundir import RunDir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -61,8 +61,8 @@ def test_a_branched_run_equals_a_real_run_of_its_tolerance(root_run, tmp_path, s
     eps = _tolerance_sharing(root_run, shared)
     real = RunDir(fit_tiny_stream("hispo", tmp_path / "real", STREAM, *_eps_args(eps))[1])
     target = RunDir(tmp_path / "branched" / "pointmaze-1" / "seed0")
-    branch.branch_run(root_run, target.path, shared, _both(eps), {"method": "hispo"})
-    assert target.read_run_record()["branched_tasks"] == shared
+    branch.branch_run(root_run, target.path, shared, _both(eps), LaunchRecord(method="hispo"))
+    assert target.read_run_record().branched_tasks == shared
     results = fit_tiny_stream("hispo", tmp_path / "branched", STREAM, *_eps_args(eps))[0]
     assert without_times(results) == without_times(real.stream_results().to_json())
     assert [d.to_json() for d in target.decisions()] == [d.to_json() for d in real.decisions()]
@@ -100,12 +100,12 @@ def test_shared_tasks_end_at_the_first_decision_the_tolerance_changes():
 def test_a_branch_refuses_tasks_that_would_decide_otherwise_or_a_used_directory(root_run, tmp_path):
     eps = _tolerance_sharing(root_run, 2)
     with pytest.raises(RunDirError, match="decide otherwise"):
-        branch.branch_run(root_run, tmp_path / "a", 3, _both(eps), {})
+        branch.branch_run(root_run, tmp_path / "a", 3, _both(eps), LaunchRecord())
     with pytest.raises(RunDirError, match="fewer than 4 finished tasks"):
-        branch.branch_run(root_run, tmp_path / "b", 4, _both(ROOT_EPS), {})
-    branch.branch_run(root_run, tmp_path / "c", 2, _both(eps), {})
+        branch.branch_run(root_run, tmp_path / "b", 4, _both(ROOT_EPS), LaunchRecord())
+    branch.branch_run(root_run, tmp_path / "c", 2, _both(eps), LaunchRecord())
     with pytest.raises(RunDirError, match="already holds a run"):
-        branch.branch_run(root_run, tmp_path / "c", 2, _both(eps), {})
+        branch.branch_run(root_run, tmp_path / "c", 2, _both(eps), LaunchRecord())
 
 
 # --- the grid's tolerance tree, end to end ----------------------------------------------------
@@ -140,14 +140,14 @@ def test_the_grid_trains_a_tolerance_sweep_as_a_tree(tiny_umaze, tmp_path, capsy
     printed = capsys.readouterr().out
     sweeps = root / "pointmaze-1" / "sweeps"
     first = RunDir(sweeps / "hispo-eps0.1" / "seed0")
-    assert "branched_tasks" not in first.read_run_record()
+    assert not first.read_run_record().holds("branched_tasks")
     decisions = first.decisions()
     for value in values[1:]:
         run = RunDir(sweeps / f"hispo-eps{value:g}" / "seed0")
         record = run.read_run_record()
         shared = branch.shared_tasks(decisions, _both(value), len(STREAM))
-        assert record["branched_from"] == "pointmaze-1/hispo-eps0.1/seed0"
-        assert record["branched_tasks"] == shared >= 1
+        assert record.branched_from == "pointmaze-1/hispo-eps0.1/seed0"
+        assert record.branched_tasks == shared >= 1
         assert f"hispo-eps{value:g}/seed0: its first {shared} task(s) branched" in printed
         assert [d.eps for d in run.decisions() if d.l_prev is not None] == [value] * len(
             [d for d in run.decisions() if d.l_prev is not None]
@@ -171,5 +171,5 @@ def test_a_branch_refuses_a_folder_another_process_holds(root_run, tmp_path):
     target = tmp_path / "held"
     target.mkdir()
     with RunDirLock(target), pytest.raises(RunDirError, match="in use by another run"):
-        branch.branch_run(root_run, target, 1, _both(ROOT_EPS), {})
+        branch.branch_run(root_run, target, 1, _both(ROOT_EPS), LaunchRecord())
     assert not RunDir(target).progress_file.exists()

@@ -59,7 +59,7 @@ def test_a_derived_run_equals_a_real_run_of_the_same_seed(real_runs, target, sou
     # its cost is the evaluation it ran: nothing trained, the first row measured nothing again
     assert [p["training"] for p in derived.phase_time_s] == [0.0, 0.0]
     assert derived.phase_time_s[0]["evaluation"] == 0.0 < derived.phase_time_s[1]["evaluation"]
-    assert RunDir(out).read_run_record()["derived_from"] == str(runs[source])
+    assert RunDir(out).read_run_record().derived_from == str(runs[source])
 
 
 def test_a_derivation_holds_its_folder_as_a_run_does(real_runs, tmp_path):
@@ -148,8 +148,9 @@ def test_grid_trains_the_sibling_then_derives_the_keep_last_cell(tiny_umaze, tmp
     assert "pointmaze-1/sc1/seed0: derived from pointmaze-1/scn/seed0" in printed
     exported = RunDir(root / "pointmaze-1/sc1/seed0")
     meta = exported.read_run_record()
-    assert meta["derived_from"] == "pointmaze-1/scn/seed0" and meta["method"] == "sc1"
-    assert "configs/methods/sc1.yaml" in meta["command"]
+    assert meta.derived_from == "pointmaze-1/scn/seed0" and meta.method == "sc1"
+    assert "configs/methods/sc1.yaml" in meta.command
+    assert list(meta.to_json())[:2] == ["derived_from", "method"]  # the source named first
     config = yaml.safe_load(exported.config_file.read_text())
     assert config["model"]["init_args"]["keep"] == "last"
     assert config["trainer"]["logger"]["init_args"]["name"] == "sc1"

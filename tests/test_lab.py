@@ -15,6 +15,7 @@ from helpers import ROOT
 from hispo_pl.benchmark import grid as gr
 from hispo_pl.benchmark import grid_report as gp
 from hispo_pl.benchmark import plan
+from hispo_pl.results import LaunchRecord
 from lab import beside_paper, paper
 from lab.__main__ import main as lab_main
 from lab.embed import EMBED_BEGIN, EMBED_END, embed_reports
@@ -176,11 +177,13 @@ def test_a_manifest_replaces_its_link_and_escapes_what_run_json_says(tmp_path):
 
 def test_a_launch_records_the_checkout_commit_only_through_the_lab(monkeypatch):
     made = plan.provenance()  # the product's: the machine and hispo-pl's version, no git
-    assert "commit" not in made and made["machine"]["cpus"] >= 1
+    assert not made.holds("commit") and made.machine["cpus"] >= 1
     assert plan.provenance_problem(made) is None  # nothing recorded, nothing to warn about
     commit = checkout_commit()["commit"]
     assert commit is None or re.fullmatch(r"[0-9a-f]{40}(\+dirty)?", commit)
     monkeypatch.setattr(plan, "CODE_RECORDERS", [lambda: {"commit": "c" * 40}])
-    assert plan.provenance()["commit"] == "c" * 40
-    assert "no commit" in plan.provenance_problem({"commit": None})
-    assert "uncommitted changes" in plan.provenance_problem({"commit": "a" * 40 + "+dirty"})
+    assert plan.provenance().commit == "c" * 40
+    assert "no commit" in plan.provenance_problem(LaunchRecord.from_json({"commit": None}))
+    assert "uncommitted changes" in plan.provenance_problem(
+        LaunchRecord(commit="a" * 40 + "+dirty")
+    )

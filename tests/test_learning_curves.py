@@ -17,6 +17,7 @@ from hispo_pl.benchmark.curves import (
     load_curves,
     mean_curve,
 )
+from hispo_pl.results import TaskFitResult
 from hispo_pl.rundir import RunDir
 from lab.embed import embed_reports
 
@@ -50,7 +51,9 @@ def _write_run(folder, name, seed, successes):
     run = RunDir(folder / "runs" / name / f"seed{seed}")
     run.path.mkdir(parents=True)
     curve = _curve(*successes)
-    run.write_result({"success": curve[-1]["success"], "step": curve[-1]["step"], "curve": curve})
+    last = {"episode_length": 100.0, "flip_rate": 0.0, **curve[-1]}
+    header = {"method": "HBC", "task": "pointmaze-umaze-N", "episodes": 4, "seconds": 1.0}
+    run.write_result(TaskFitResult(**header, **last, curve=curve))
 
 
 def test_report_names_the_budget_once_every_task_of_its_setting_has_runs(tmp_path):
@@ -78,7 +81,7 @@ def test_the_study_runs_the_products_fit_exports_and_its_page_embeds_the_report(
     assert study_script.main(args) == 0
     run = RunDir(export / "runs" / "hbc-pointmaze-umaze" / "seed0")
     result = run.read_result()
-    assert [p["step"] for p in result["curve"]] == [2, 4] and result["step"] == 4
+    assert [p["step"] for p in result.curve] == [2, 4] and result.step == 4
     assert "commit" in json.loads((run.path / "run.json").read_text())
     assert (export / "curves.png").exists() and (export / "curves.csv").exists()
     assert "Budget B = " in (export / "curves.md").read_text()

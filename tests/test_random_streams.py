@@ -12,6 +12,7 @@ from hispo_pl.benchmark import plan
 from hispo_pl.benchmark.configs import datasets_needed
 from hispo_pl.cli import main as cli_main
 from hispo_pl.fit import check_fit_args
+from hispo_pl.results import LaunchRecord
 from hispo_pl.rundir import RunDir
 from hispo_pl.tasks import (
     FAMILIES,
@@ -175,7 +176,7 @@ def test_a_benchmark_of_a_random_stream_plans_and_checks_its_tasks(tmp_path):
     assert plan.planned_tasks(run) == [parse_task(s).spec for s in PINNED[name]]
     assert plan.foreign_runs([run], name) == []
     run.run_dir.mkdir(parents=True)
-    RunDir(run.run_dir).write_run_record({"stream": "pointmaze-1"})
+    RunDir(run.run_dir).write_run_record(LaunchRecord(stream="pointmaze-1"))
     assert plan.foreign_runs([run], name) == ["scn/seed0 (pointmaze-1)"]
 
 

@@ -13,6 +13,7 @@ from hispo_pl.metrics import METRICS, continual_metrics
 from hispo_pl.results import (
     CriticDecision,
     Decision,
+    LaunchRecord,
     LossDecision,
     StreamResults,
     ZeroShotDecision,
@@ -49,7 +50,7 @@ def test_the_committed_runs_are_of_different_ages():
     assert "phase_time_s" not in keys[0] and {"phase_time_s", "datasets"} <= keys[1]
 
 
-def test_every_committed_file_reads_and_writes_back_unchanged():
+def test_every_committed_file_reads_and_writes_back_unchanged(tmp_path):
     for path in _committed("decisions.jsonl"):
         for line in path.read_text().splitlines():
             assert json.dumps(Decision.from_json(json.loads(line)).to_json()) == line, path
@@ -57,7 +58,30 @@ def test_every_committed_file_reads_and_writes_back_unchanged():
         text = json.dumps(StreamResults.from_json(json.loads(path.read_text())).to_json(), indent=1)
         assert text == path.read_text(), path
     for path in _committed("result.json"):
-        assert 0.0 <= RunDir(path.parent).read_result()["success"] <= 1.0, path
+        result = RunDir(path.parent).read_result()
+        assert 0.0 <= result.success <= 1.0, path
+        assert json.dumps(result.to_json(), indent=2) + "\n" == path.read_text(), path
+    for path in _committed("run.json"):
+        copy = RunDir(tmp_path / path.parent.relative_to(RESULTS))
+        copy.path.mkdir(parents=True)
+        copy.write_run_record(RunDir(path.parent).read_run_record())
+        assert copy.run_record_file.read_bytes() == path.read_bytes(), path
+
+
+def test_a_launch_record_keeps_its_keys_order_and_nulls():
+    record = LaunchRecord.launched(
+        method="sc1", seed=0, stream=None, steps_per_task=None, argv=["fit"], command="python"
+    )
+    assert record.to_json()["stream"] is None and record.holds("steps_per_task")
+    source = LaunchRecord.from_json({"derived_from": "scn/seed0"}).merged(record)
+    assert list(source.to_json())[:2] == ["derived_from", "method"]
+    copied = record.merged({"commit": None, "mine": 1}).replace(derived_from="l2-lambda1/seed0")
+    assert list(copied.to_json())[-3:] == ["commit", "mine", "derived_from"]
+    assert copied.extra == {"mine": 1} and copied.commit is None and copied.holds("commit")
+    assert LaunchRecord.from_json(copied.to_json()) == copied
+    assert list(copied.without("argv", "command").to_json())[4:6] == ["commit", "mine"]
+    with pytest.raises(TypeError, match="a launch records method"):
+        LaunchRecord.launched(method="sc1")
 
 
 def test_each_record_reads_as_its_kind():

@@ -10,6 +10,7 @@ import pytest
 from helpers import ROOT
 
 from hispo_pl.benchmark import PlannedRun, export_runs, plan
+from hispo_pl.results import LaunchRecord
 from lab.manifest import MANIFEST, REFERENCE_FOLDERS, manifest_markdown
 
 RESULTS = ROOT / "docs" / "results"
@@ -37,9 +38,11 @@ def test_the_index_parts_the_reference_results_from_the_studies():
 
 
 def test_a_run_without_a_clean_commit_is_named_loudly_at_launch_and_export(tmp_path, capsys):
-    assert plan.provenance_problem({"commit": "a" * 40}) is None
-    assert "no commit" in plan.provenance_problem({"commit": None})
-    assert "uncommitted changes" in plan.provenance_problem({"commit": "a" * 40 + "+dirty"})
+    assert plan.provenance_problem(LaunchRecord(commit="a" * 40)) is None
+    assert "no commit" in plan.provenance_problem(LaunchRecord.from_json({"commit": None}))
+    assert "uncommitted changes" in plan.provenance_problem(
+        LaunchRecord(commit="a" * 40 + "+dirty")
+    )
     run = tmp_path / "out" / "scn" / "seed0"
     run.mkdir(parents=True)
     (run / "results.json").write_text(json.dumps({"stream": ["a"], "R": [[1.0]]}))
@@ -48,5 +51,5 @@ def test_a_run_without_a_clean_commit_is_named_loudly_at_launch_and_export(tmp_p
     err = capsys.readouterr().err
     assert "WARNING: exporting" in err and "uncommitted changes" in err
     planned = PlannedRun("scn", 0, tmp_path / "new", ("-m", "hispo_pl.cli", "fit"))
-    plan.pending_runs([planned], "pointmaze-1", {"commit": None})
+    plan.pending_runs([planned], "pointmaze-1", LaunchRecord.from_json({"commit": None}))
     assert "WARNING: launching 1 run(s): no commit recorded" in capsys.readouterr().err

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 import hispo_pl
-from hispo_pl.results import LossDecision, Progress, StreamResults
+from hispo_pl.errors import RunDirError
+from hispo_pl.results import LaunchRecord, LossDecision, Progress, StreamResults
 from hispo_pl.rundir import RunDir, task_label
 
 
@@ -79,7 +80,7 @@ def test_search_files_come_back_keyed_by_the_zero_based_task(tmp_path):
 
 def test_progress_results_and_records_round_trip(tmp_path):
     run = RunDir(tmp_path / "new")
-    assert run.read_progress() is None and run.read_run_record() == {}
+    assert run.read_progress() is None and run.read_run_record() == LaunchRecord()
     run.path.mkdir()
     progress = Progress(stream=["a"], fingerprint={"seed": 0})
     run.write_progress(progress)
@@ -97,9 +98,12 @@ def test_progress_results_and_records_round_trip(tmp_path):
         "mem_per_task",
     ]
     run.write_results(StreamResults(stream=["a"], R=[[1.0]]))
-    run.write_run_record({"method": "hispo"})
+    run.write_run_record(LaunchRecord(method="hispo"))
     assert run.has_results() and run.stream_results().R == [[1.0]]
-    assert run.read_run_record() == {"method": "hispo"}
+    assert run.read_run_record() == LaunchRecord(method="hispo")
+    run.result_file.write_text(json.dumps({"method": "HBC", "task": "a", "success": 1.0}))
+    with pytest.raises(RunDirError, match="result.json has no episodes, seconds, episode_length"):
+        run.read_result()
 
 
 def test_progress_of_an_older_run_gets_none_for_what_it_did_not_record():

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from ..decisions import keep_previous
 from ..errors import RunDirError
-from ..results import Decision, LossDecision
+from ..results import Decision, LaunchRecord, LossDecision
 from ..rundir import RunDir
 
 PRUNING_CLASS = "SubspacePruning"
@@ -141,7 +141,11 @@ def branched_fingerprint(fingerprint: Mapping, eps: Mapping[str, float]) -> dict
 
 
 def branch_run(
-    source: str | Path, target: str | Path, tasks: int, eps: Mapping[str, float], record: dict
+    source: str | Path,
+    target: str | Path,
+    tasks: int,
+    eps: Mapping[str, float],
+    record: LaunchRecord,
 ) -> None:
     """Start the run at ``eps`` in ``target`` with the first ``tasks`` tasks of the run in
     ``source``: their checkpoints, task configs and search files, ``progress.json`` (rows,
@@ -162,7 +166,11 @@ def branch_run(
 
 
 def _write_branch(
-    source: str | Path, target: str | Path, tasks: int, eps: Mapping[str, float], record: dict
+    source: str | Path,
+    target: str | Path,
+    tasks: int,
+    eps: Mapping[str, float],
+    record: LaunchRecord,
 ) -> None:
     import torch
 
@@ -203,5 +211,6 @@ def _write_branch(
         phase_time_s=[{"training": 0.0}] * tasks,
         fingerprint=branched_fingerprint(fingerprint, eps) if fingerprint is not None else None,
     )
-    out.write_run_record({"branched_from": str(src), **record, "branched_tasks": tasks})
+    launch = LaunchRecord.from_json({"branched_from": str(src)}).merged(record)
+    out.write_run_record(launch.merged({"branched_tasks": tasks}))
     out.write_progress(branched)

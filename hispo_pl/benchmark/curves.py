@@ -117,7 +117,7 @@ def _run_curves(folder: Path, setting: str, task: str) -> list[tuple[int, list[d
     """(seed, curve) of every finished run of ``setting`` on ``task`` that recorded one."""
     found = []
     for path in sorted((Path(folder) / "runs" / f"{setting}-{task}").glob("seed*/result.json")):
-        curve = RunDir(path.parent).read_result().get("curve")
+        curve = RunDir(path.parent).read_result().curve
         if curve:
             found.append((int(path.parent.name.removeprefix("seed")), curve))
     return found

@@ -27,7 +27,7 @@ from typing import TypeVar
 
 from ..errors import RunDirError
 from ..methods import KeepLast, config_callbacks, config_spec
-from ..results import Progress, StreamResults
+from ..results import LaunchRecord, Progress, StreamResults
 from ..rundir import RunDir
 
 C = TypeVar("C")  # a grid cell: a frozen dataclass with name, stream, label, method, seed
@@ -178,7 +178,9 @@ def _nothing_to_train(_):
     raise RunDirError("a derived run has every task finished; nothing trains")
 
 
-def derive_run(source: str | Path, target: str | Path, record: dict | None = None) -> StreamResults:
+def derive_run(
+    source: str | Path, target: str | Path, record: LaunchRecord | None = None
+) -> StreamResults:
     """Write into ``target`` the keep-last run that the finished keep-all run ``source``
     stands for: :func:`write_derived_tasks` holding ``target``'s run lock, as a run holds it
     (two launches that derive the same run at once do not write into one folder together),
@@ -218,7 +220,7 @@ def derive_run(source: str | Path, target: str | Path, record: dict | None = Non
 
 
 def write_derived_tasks(
-    source: str | Path, target: str | Path, record: dict | None = None
+    source: str | Path, target: str | Path, record: LaunchRecord | None = None
 ) -> Progress:
     """Write into ``target`` every task of the keep-last run that the finished keep-all run
     ``source`` stands for: its checkpoints, ``config.yaml`` and ``task_XX.config.yaml``,
@@ -294,7 +296,6 @@ def write_derived_tasks(
         out.append_decisions(decisions)
     atomic_write_text(out.config_file, config_text)
     if record is None:  # the source's, but for its method and the command that made it
-        mine = ("method", "argv", "command")
-        record = {k: v for k, v in src.read_run_record().items() if k not in mine}
-    out.write_run_record({"derived_from": str(src), **record})
+        record = src.read_run_record().without("method", "argv", "command")
+    out.write_run_record(LaunchRecord.from_json({"derived_from": str(src)}).merged(record))
     return derived

@@ -4,14 +4,14 @@ of the same seed, mean ± std over seeds per method."""
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import RunDirError
 from ..io import copy_files, make_folder, real_folder, refuse_linked
 from ..metrics import METRICS, continual_metrics, mean_std
-from ..results import Decision, StreamResults, fwt_reference
+from ..results import Decision, LaunchRecord, StreamResults, fwt_reference
 from ..rundir import RunDir
 from .plan import PLAN_FILE, RUNS_DIR, planned_stream, warn_provenance
 
@@ -24,26 +24,27 @@ class RunRecord:
     method: str
     seed: int
     results: StreamResults
-    meta: dict = field(default_factory=dict)
+    meta: LaunchRecord = field(default_factory=LaunchRecord)
     decisions: list[Decision] = field(default_factory=list)
     derived_from: str | None = None
     """The method whose run of the same stream and seed this run was derived from instead of
     trained (:mod:`.derive`; :func:`derived_source` of its ``run.json``), None if it trained."""
 
 
-def derived_source(method: str, meta: Mapping) -> str | None:
+def derived_source(method: str, meta: LaunchRecord) -> str | None:
     """The method whose run ``method``'s run was derived from (``run.json``'s
     ``derived_from``: ``<stream>/<label>/seed<S>`` or a run directory); None for a run that
     trained: one without ``derived_from``, or a seed copied from its own method's sweep
     (``<method>-<sweep><value>``: that sweep run trained, this is the same run).
 
     Example:
-        >>> derived_source("ft1", {"derived_from": "videogame-1/ftn/seed0"})
+        >>> derived_source("ft1", LaunchRecord(derived_from="videogame-1/ftn/seed0"))
         'ftn'
-        >>> derived_source("l2", {"derived_from": "pointmaze-1/l2-lambda0.01/seed0"}) is None
+        >>> source = LaunchRecord(derived_from="pointmaze-1/l2-lambda0.01/seed0")
+        >>> derived_source("l2", source) is None
         True
     """
-    source = meta.get("derived_from")
+    source = meta.derived_from
     if not source:
         return None
     parts = Path(str(source)).parts
@@ -97,7 +98,7 @@ def _stream_of(run: RunDir) -> tuple[str | None, tuple[str, ...] | None]:
     """A finished run's stream: the name its ``run.json`` records and the tasks of its
     ``results.json``, each None where the file does not say."""
     try:
-        name = run.read_run_record().get("stream")
+        name = run.read_run_record().stream
     except RunDirError:
         name = None
     try:

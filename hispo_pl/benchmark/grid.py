@@ -455,7 +455,7 @@ def committed_reader(grid: Grid, config_dir: Path, root: Path) -> Callable[[Cell
             )
         if results.stream != tasks[cell.stream]:
             return None
-        steps = meta.get("steps_per_task")
+        steps = meta.steps_per_task
         if steps is not None and steps != budgets[cell.stream]:
             return None
         for key, value in zip(cell.extra[::2], cell.extra[1::2], strict=True):

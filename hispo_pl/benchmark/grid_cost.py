@@ -28,7 +28,7 @@ def tree_tasks(root: Path, stream: str, sweep) -> str:
         if not run.has_results():
             continue
         tasks = len(run.stream_results().stream)
-        copied = int(run.read_run_record().get("branched_tasks") or 0)
+        copied = run.read_run_record().branched_tasks or 0
         trained, held = trained + tasks - copied, held + tasks
     return f"{trained} of {held}" if held else ""
 
@@ -77,7 +77,7 @@ def sweeps_markdown(grid: Grid, root: Path) -> str:
 def _copied_from_sweep(record: RunRecord, root: Path) -> bool:
     """A seed copied from its sweep (``run.json`` names the sweep run it is): its time is
     counted once, with the sweep's runs."""
-    parts = Path(record.meta.get("derived_from") or "").parts
+    parts = Path(record.meta.derived_from or "").parts
     if len(parts) < 3:  # not derived, or not from a grid's cell
         return False
     stream, label, seed = parts[-3:]

@@ -12,6 +12,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..io import atomic_write_text, copy_files, real_folder, refuse_linked
+from ..results import LaunchRecord
 from ..rundir import RunDir
 from .derive import derivable_run, derive_run, keep_last_siblings
 from .grid import Cell, Grid, cell_run, committed_reader, describe, plan_cells
@@ -33,9 +34,9 @@ def export_cell(run_dir: Path, cell: Cell, root: Path, derived_from: Cell | None
     real_folder(target, root)
     copy_files(pairs)
     if derived_from is not None:
-        meta = RunDir(target).read_run_record()
-        meta.update(method=cell.label, derived_from=derived_from.name)
-        RunDir(target).write_run_record(meta)
+        record = RunDir(target).read_run_record()
+        record = record.replace(method=cell.label, derived_from=derived_from.name)
+        RunDir(target).write_run_record(record)
     if RunDir(target).run_record_file.exists():
         warn_provenance(RunDir(target).read_run_record(), f"exporting {cell.name}")
     plan_file = Path(root) / cell.stream / PLAN_FILE
@@ -251,7 +252,7 @@ def branch_cell(
         cell_run(target, grid, config_dir, work, num_threads),
         cell_run(source, grid, config_dir, work, num_threads),
     )
-    record = {"branched_from": source.name}
+    record = LaunchRecord(branched_from=source.name)
     branch_run(made.run_dir, run.run_dir, tasks, tolerances(target.extra), record)
 
 
@@ -276,15 +277,14 @@ def derive_cell(
         cell_run(target, grid, config_dir, work, num_threads),
         cell_run(source, grid, config_dir, work, num_threads),
     )
-    record = {
-        "method": run.method,
-        "seed": run.seed,
-        "stream": target.stream,
-        "steps_per_task": run.steps_per_task,
-        "argv": list(run.argv),
-        "command": shlex.join(run.command(sys.executable)),
-        **provenance(),
-        "derived_from": source.name,
-    }
+    record = LaunchRecord.launched(
+        method=run.method,
+        seed=run.seed,
+        stream=target.stream,
+        steps_per_task=run.steps_per_task,
+        argv=list(run.argv),
+        command=shlex.join(run.command(sys.executable)),
+    )
+    record = record.merged(provenance()).replace(derived_from=source.name)
     derive_run(made.run_dir, run.run_dir, record)
     return export_cell(run.run_dir, target, root)

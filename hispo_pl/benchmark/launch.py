@@ -3,6 +3,7 @@ subprocess; a progress bar and a line per finished run."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shlex
@@ -110,12 +111,8 @@ class Reporter:
 def record_status(run: PlannedRun, status: str) -> None:
     """Note a run's outcome in its ``run.json`` (the tables list failed runs with it)."""
     run_dir = RunDir(run.run_dir)
-    try:
-        meta = run_dir.read_run_record()
-        meta["status"] = status
-        run_dir.write_run_record(meta)
-    except (OSError, ValueError):  # the record is a convenience; the log says the rest
-        pass
+    with contextlib.suppress(OSError, ValueError):  # a convenience; the log says the rest
+        run_dir.write_run_record(run_dir.read_run_record().replace(status=status))
 
 
 def run_local(

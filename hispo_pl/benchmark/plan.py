@@ -9,7 +9,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..results import StreamResults
+from ..results import LaunchRecord, StreamResults, TaskFitResult
 from ..rundir import RunDir, read_json_object
 from .configs import configured_max_steps, configured_value
 
@@ -175,7 +175,7 @@ class PlannedRun:
         """Write the results a remote worker sent back."""
         run = RunDir(self.run_dir)
         if self.single_task:
-            run.write_result(results)
+            run.write_result(TaskFitResult.from_json(results))
         else:
             run.write_results(StreamResults.from_json(results))
 
@@ -280,7 +280,7 @@ def foreign_runs(runs: Sequence[PlannedRun], stream: str) -> list[str]:
     found = []
     for run in runs:
         run_dir = RunDir(run.run_dir)
-        old = run_dir.read_run_record().get("stream")
+        old = run_dir.read_run_record().stream
         if old is not None and old != stream:
             found.append(f"{run.name} ({old})")
         elif run_dir.has_results():
@@ -290,15 +290,12 @@ def foreign_runs(runs: Sequence[PlannedRun], stream: str) -> list[str]:
     return found
 
 
-BRANCH_RECORD = ("branched_from", "branched_tasks")
-
-
 # what else a launch records about the code it runs, each a function giving run.json keys (a
 # repository's tool adds its checkout's commit): called in the launching process
 CODE_RECORDERS: list[Callable[[], dict]] = []
 
 
-def provenance() -> dict:
+def provenance() -> LaunchRecord:
     """Where a run is made, for the run's ``run.json``: hispo-pl's version and the machine,
     then what each of :data:`CODE_RECORDERS` adds."""
     import importlib.metadata
@@ -323,16 +320,16 @@ def provenance() -> dict:
     }
     for recorder in CODE_RECORDERS:
         made |= recorder()
-    return made
+    return LaunchRecord.from_json(made)
 
 
-def provenance_problem(record: dict) -> str | None:
+def provenance_problem(record: LaunchRecord) -> str | None:
     """Why a run's recorded provenance (``run.json``, or :func:`provenance`) does not name
     the code that made it, or None when it does: a recorder of the commit found none, or a tree
     with uncommitted changes. A launch that records no commit at all has nothing to say."""
-    if "commit" not in record:
+    if not record.holds("commit"):
         return None
-    commit = record["commit"]
+    commit = record.commit
     if not commit:
         return "no commit recorded (made outside a git checkout, or before runs recorded one)"
     if str(commit).endswith("+dirty"):
@@ -340,7 +337,7 @@ def provenance_problem(record: dict) -> str | None:
     return None
 
 
-def warn_provenance(record: dict, what: str) -> bool:
+def warn_provenance(record: LaunchRecord, what: str) -> bool:
     """Print a loud warning when ``record``'s provenance names no commit that holds the code
     (:func:`provenance_problem`); whether it warned. Results meant for committing should be
     made from a clean tree."""
@@ -356,7 +353,7 @@ def warn_provenance(record: dict, what: str) -> bool:
 
 
 def pending_runs(
-    runs: Sequence[PlannedRun], stream: str | None, made_on: dict | None = None
+    runs: Sequence[PlannedRun], stream: str | None, made_on: LaunchRecord | None = None
 ) -> list[PlannedRun]:
     """The runs without results (:attr:`PlannedRun.results_path`: new or interrupted), each
     with a fresh ``run.json`` (method, seed, stream, budget, command, and ``made_on``: the
@@ -368,7 +365,7 @@ def pending_runs(
     for run in runs:
         run_dir = RunDir(run.run_dir)
         old = run_dir.read_run_record() if run_dir.run_record_file.exists() else None
-        changed = old is not None and old.get("argv") != list(run.argv)
+        changed = old is not None and old.argv != list(run.argv)
         if run.results_path.exists():
             note = " (it was launched with another command)" if changed else ""
             print(f"[benchmark] {run.name}: skipped, {run.results_path.name} exists{note}")
@@ -377,17 +374,19 @@ def pending_runs(
             note = "; note: the command differs from its first launch" if changed else ""
             print(f"[benchmark] {run.name}: resuming an interrupted run{note}")
         run.run_dir.mkdir(parents=True, exist_ok=True)
-        meta = {
-            "method": run.method,
-            "seed": run.seed,
-            "stream": stream,
-            "steps_per_task": run.steps_per_task,
-            "argv": list(run.argv),
-            "command": shlex.join(run.command(sys.executable)),
-            **(made_on or {}),
-            # a tolerance tree's run keeps the record of the tasks it was branched with
-            **{k: old[k] for k in BRANCH_RECORD if old is not None and k in old},
-        }
-        run_dir.write_run_record(meta)
+        record = LaunchRecord.launched(
+            method=run.method,
+            seed=run.seed,
+            stream=stream,
+            steps_per_task=run.steps_per_task,
+            argv=list(run.argv),
+            command=shlex.join(run.command(sys.executable)),
+        )
+        if made_on is not None:
+            record = record.merged(made_on)
+        if old is not None:  # a tolerance tree's run keeps the record of its branching
+            branched = {"branched_from": old.branched_from, "branched_tasks": old.branched_tasks}
+            record = record.merged({k: v for k, v in branched.items() if old.holds(k)})
+        run_dir.write_run_record(record)
         todo.append(run)
     return todo

@@ -82,7 +82,7 @@ def unfinished_runs(out: Path) -> list[tuple[str, int, str]]:
         except ValueError:
             continue
         try:
-            status = run.read_run_record().get("status")
+            status = run.read_run_record().status
         except RunDirError as err:
             status = f"unreadable: {err}"
         status = status or "not finished (interrupted, or still running)"

@@ -238,7 +238,7 @@ def runtime_csv(records: Sequence[RunRecord]) -> str:
     writer.writerow(["method", "seed", "minutes", "steps_per_task"])
     for r in records:
         minutes = run_minutes(r)
-        steps = r.meta.get("steps_per_task")
+        steps = r.meta.steps_per_task
         writer.writerow([r.method, r.seed, round(minutes, 3), "" if steps is None else steps])
     return buf.getvalue()
 
