@@ -145,4 +145,21 @@ def run_stream_from_cli(cli: LightningCLI, model, datamodule) -> FinishedStream:
         config_text=yaml.safe_dump(plain, sort_keys=False),
         checkpoint_every=int(config.get("checkpoint_every") or 0),
     )
-    return FinishedStream(loop.run(), RunDir(run_dir))
+    results = loop.run()
+    _save_config_if_no_task_trained(cli, RunDir(run_dir))
+    return FinishedStream(results, RunDir(run_dir))
+
+
+def _save_config_if_no_task_trained(cli: LightningCLI, run_dir: RunDir) -> None:
+    """Lightning's ``config.yaml``, as a task's Trainer saves it, for a fit that trained no
+    task: a stream whose every task was done before (a tolerance tree's branch copied whole)
+    starts no Trainer, and its run files would lack the configuration."""
+    if run_dir.config_file.exists():
+        return
+    from .io import replace_link
+
+    replace_link(run_dir.config_file)
+    subcommand = cli.subcommand
+    cli._parser(subcommand).save(
+        cli.config.get(str(subcommand), cli.config), str(run_dir.config_file), skip_none=False
+    )

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 import torch
+import yaml
 from helpers import (
     BENCH_TINY_OVERRIDES,
     fit_tiny_stream,
@@ -74,6 +75,13 @@ def test_a_branched_run_equals_a_real_run_of_its_tolerance(root_run, tmp_path, s
     # the copied tasks cost nothing; a task trained after the branch did
     training = [p["training"] for p in target.read_progress().phase_time_s]
     assert training[:shared] == [0.0] * shared and all(t > 0 for t in training[shared:])
+    # the configuration is in the run's files even where no task trained (copied whole), as
+    # a real run writes it: the grid reads the swept value back from it
+    configs = [yaml.safe_load(r.config_file.read_text()) for r in (target, real)]
+    for config in configs:
+        config["trainer"].pop("logger")  # where each was written
+    assert configs[0] == configs[1]
+    assert saved_setting(target.config_file, "eps_low") == eps
     if shared < len(STREAM):  # the first differing decision is the branch's own
         root = [d.decision for d in RunDir(root_run).decisions() if d.task == shared]
         assert root != [d.decision for d in target.decisions() if d.task == shared]
