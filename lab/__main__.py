@@ -88,7 +88,10 @@ def benchmark(argv: Sequence[str]) -> int:
     from .provenance import checkout_commit
 
     plan.CODE_RECORDERS.append(checkout_commit)
-    code = command_line.main(list(argv))
+    try:
+        code = command_line.main(list(argv))
+    finally:  # for this launch only: the product itself records no commit
+        plan.CODE_RECORDERS.remove(checkout_commit)
     args, _ = command_line.build_parser().parse_known_args(list(argv))
     if code == 0 and args.grid and args.export and not args.dry_run:
         grid_reports(args.grid, Path(args.export))
@@ -109,13 +112,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     made.add_argument("root", nargs="?", type=Path, default=RESULTS)
     verbs.add_parser("benchmark", help="hispo-pl benchmark, recording the checkout's commit")
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv[:1] == ["benchmark"]:  # every other argument is the benchmark's
-        return benchmark(argv[1:])
-    args = parser.parse_args(argv)
+    verb = argv[0] if argv[:1] == ["benchmark"] else None
+    args = None if verb else parser.parse_args(argv)
     try:
+        if verb:  # every other argument is the benchmark's
+            return benchmark(argv[1:])
         run(args)
-    except UserError as err:  # a page or run file to fix: one line, as hispo-pl says it
-        print(f"python -m lab {args.verb}: {err}", file=sys.stderr)
+    except UserError as err:  # a flag, page or run file to fix: one line, as hispo-pl says it
+        print(f"python -m lab {verb or args.verb}: {err}", file=sys.stderr)
         return 2
     return 0
 

@@ -118,6 +118,15 @@ def test_a_page_whose_embed_cannot_be_built_is_one_line(tmp_path, capsys, embed,
     assert page.read_text() == before
 
 
+def test_a_benchmark_flag_to_fix_is_one_line(tmp_path, capsys):
+    args = ["--grid", "paper", "--out", str(tmp_path / "w"), "--export", str(tmp_path / "r")]
+    assert lab_main(["benchmark", *args, "--seeds", "0", "--dry-run"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "python -m lab benchmark: --seeds as a count must be >= 1, got '0' " + (
+        "(hispo-pl benchmark --help)"
+    )
+
+
 def test_a_page_that_does_not_exist_is_one_line(tmp_path, capsys):
     assert lab_main(["rebuild-docs", str(tmp_path / "no.md")]) == 2
     err = capsys.readouterr().err.strip()
