@@ -28,6 +28,9 @@ REFERENCE_FOLDERS = (
     "pointmaze-2-paper",
     "antmaze-1-paper",
     "grid-paper",
+    "paper-protocol/pointmaze-1",
+    "paper-protocol/pointmaze-2",
+    "paper-protocol/grid-paper-protocol",
     "demo",
 )
 MANIFEST = "MANIFEST.md"
