@@ -45,7 +45,8 @@ from hispo_pl.benchmark import (
 )
 from hispo_pl.results import TaskFitResult
 from hispo_pl.rundir import RunDir
-from hispo_pl.tasks import FAMILIES, parse_task
+from hispo_pl.task_families import FAMILIES
+from hispo_pl.tasks import parse_task
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # a script of the checkout: its lab/
 from lab.provenance import checkout_commit  # noqa: E402

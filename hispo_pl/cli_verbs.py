@@ -210,7 +210,8 @@ def evaluate_main(argv: list[str]) -> int:
 def expand_render_tasks(names: list[str]) -> list:
     """Task specs, where a bare family name (``amazeville``, ``simpletown``) stands for every
     maze of that family, so one word draws a whole game."""
-    from .tasks import FAMILIES, parse_task
+    from .task_families import FAMILIES
+    from .tasks import parse_task
 
     specs: list[str] = []
     for name in names:

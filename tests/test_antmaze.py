@@ -26,7 +26,8 @@ from hispo_pl.envs.experts import (
 )
 from hispo_pl.envs.robotics import RoboticsMazes
 from hispo_pl.evaluation import RolloutEvaluator
-from hispo_pl.tasks import VARIANTS, parse_task, transform_action, transform_observation
+from hispo_pl.task_families import VARIANTS
+from hispo_pl.tasks import parse_task, transform_action, transform_observation
 
 RESET = {"reset_cell": np.array([1, 1]), "goal_cell": np.array([3, 1])}
 STEPS = 15

@@ -267,7 +267,7 @@ def test_decide_keeps_when_the_previous_subspace_is_worse():
 
 
 def test_tolerances_left_unset_are_the_task_familys():
-    from hispo_pl.tasks import FAMILIES
+    from hispo_pl.task_families import FAMILIES
 
     point, game = FAMILIES["pointmaze"], FAMILIES["amazeville"]
     assert point.pruning_eps != game.pruning_eps  # the families do differ

@@ -32,7 +32,7 @@ from hispo_pl.nn.hierarchy import high_input, low_input
 from hispo_pl.nn.mlp import gaussian_nll
 from hispo_pl.results import SearchResult
 from hispo_pl.rundir import RunDir
-from hispo_pl.tasks import FAMILIES
+from hispo_pl.task_families import FAMILIES
 
 ROOT = Path(__file__).resolve().parents[1]
 LEVELS = ("high", "low")

@@ -13,7 +13,7 @@ import torch
 import yaml
 from helpers import BENCH_TINY_OVERRIDES, TINY_STREAM, fit_tiny_stream, nested_equal, without_times
 
-from hispo_pl.benchmark import derive, grid_run
+from hispo_pl.benchmark import derive, grid_plan, grid_run
 from hispo_pl.benchmark import grid as gr
 from hispo_pl.errors import RunDirError
 from hispo_pl.rundir import RunDir
@@ -106,7 +106,7 @@ def test_keep_last_methods_derive_from_the_keep_all_config_that_differs_only_in_
 def test_the_grid_derives_a_keep_last_cell_whose_sibling_trains_or_left_its_checkpoints():
     grid = gr.load_grid("paper", ROOT / "configs")
     sibling = grid_run.grid_sibling(grid.methods, ROOT / "configs")
-    plan = gr.plan_cells(grid, ["pointmaze-1"], lambda c: None, sibling, lambda c: False)
+    plan = grid_plan.plan_cells(grid, ["pointmaze-1"], lambda c: None, sibling, lambda c: False)
     pairs = sorted((t.name, s.name) for t, s in plan.from_sibling)
     assert pairs == sorted(
         (f"pointmaze-1/{t}/seed{s}", f"pointmaze-1/{src}/seed{s}")
@@ -114,12 +114,12 @@ def test_the_grid_derives_a_keep_last_cell_whose_sibling_trains_or_left_its_chec
         for s in range(3)
     )
     assert not {c.method for c in plan.todo} & {"sc1", "ft1"}
-    line = gr.describe(plan, lambda c: None)[0]
+    line = grid_plan.describe(plan, lambda c: None)[0]
     # 13 methods, 2 of them derived: 11 × 3 seeds, and the two λ sweeps' 4 values besides seed 0's
     assert "0 done, 37 to run" in line and "6 to derive from a sibling" in line
     # the sibling committed: derived only where its run directory is still there (seed 0)
     done = {f"pointmaze-1/scn/seed{s}": 0.5 for s in range(3)}
-    plan = gr.plan_cells(
+    plan = grid_plan.plan_cells(
         grid, ["pointmaze-1"], lambda c: done.get(c.name), sibling, lambda c: c.seed == 0
     )
     derived = [(t.name, s.name) for t, s in plan.from_sibling if t.method == "sc1"]
@@ -129,7 +129,7 @@ def test_the_grid_derives_a_keep_last_cell_whose_sibling_trains_or_left_its_chec
         "pointmaze-1/sc1/seed2",
     ]
     # without a sibling rule nothing is derived
-    assert gr.plan_cells(grid, ["pointmaze-1"], lambda c: None).from_sibling == []
+    assert grid_plan.plan_cells(grid, ["pointmaze-1"], lambda c: None).from_sibling == []
 
 
 def test_grid_trains_the_sibling_then_derives_the_keep_last_cell(tiny_umaze, tmp_path, capsys):

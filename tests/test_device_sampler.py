@@ -9,7 +9,8 @@ import torch
 from scipy import stats
 from test_sampler import _indexed_dataset
 
-from hispo_pl.data.datamodule import TaskDataModule, _Batches
+from hispo_pl.data.batch_stream import _Batches
+from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.data.sampler import DeviceHERSampler, HERConfig, HERSampler, MixedSampler
 
 DEVICES = [

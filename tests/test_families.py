@@ -9,7 +9,8 @@ import pytest
 from hispo_pl.envs import make_env
 from hispo_pl.envs.family import FamilyBehaviour, family_behaviour
 from hispo_pl.evaluation import reset_options
-from hispo_pl.tasks import FAMILIES, parse_task
+from hispo_pl.task_families import FAMILIES
+from hispo_pl.tasks import parse_task
 
 
 @pytest.mark.parametrize("family", FAMILIES)

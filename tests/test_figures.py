@@ -13,14 +13,13 @@ from hispo_pl.figures import (
     anchor_counts_figure,
     anchor_weights_figure,
     forgetting_figure,
-    label_offsets,
     method_style,
-    perf_vs_memory_figure,
     rule_figure,
     simplex_figure,
     stream_summary,
     success_matrix_figure,
 )
+from hispo_pl.perf_memory_figures import label_offsets, perf_vs_memory_figure
 from hispo_pl.results import LossDecision
 
 STREAM = ["pointmaze-umaze-N[500]", "pointmaze-large-N[500]", "pointmaze-umaze-PO[500]"]
@@ -80,7 +79,7 @@ def _no_offset(fig, ax) -> bool:
 def test_the_grid_s_iqm_figure_has_plain_axes_intervals_and_a_title_inside():
     from types import SimpleNamespace
 
-    from hispo_pl.figures import iqm_vs_memory_figure
+    from hispo_pl.perf_memory_figures import iqm_vs_memory_figure
 
     rows = [  # MEM equal to the fifth decimal: one spot, no offset axis
         SimpleNamespace(method="scn", streams=["a", "b"], means={"MEM": 4.00004}, iqm=(97, 95, 99)),
@@ -114,7 +113,7 @@ def test_the_grid_s_iqm_figure_has_plain_axes_intervals_and_a_title_inside():
 def test_a_method_has_one_style_in_every_figure_whatever_its_place():
     from types import SimpleNamespace
 
-    from hispo_pl.figures import iqm_vs_memory_figure
+    from hispo_pl.perf_memory_figures import iqm_vs_memory_figure
 
     names = [*METHOD_STYLES, "my-method"]
     grid = [

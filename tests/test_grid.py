@@ -14,9 +14,11 @@ import yaml
 from helpers import BENCH_TINY, BENCH_TINY_OVERRIDES, grid_config_dir
 
 from hispo_pl.benchmark import grid as gr
+from hispo_pl.benchmark import grid_plan
 from hispo_pl.benchmark import grid_report as gp
 from hispo_pl.benchmark.finished_runs import RunRecord
 from hispo_pl.benchmark.launch import execute_run
+from hispo_pl.benchmark.plan import planned_tasks
 from hispo_pl.benchmark.tables import run_minutes
 from hispo_pl.cli import main as cli_main
 from hispo_pl.errors import ConfigError
@@ -110,15 +112,15 @@ def test_parts_streams_and_unknown_names():
 
 def test_chosen_value_waits_for_every_value_and_breaks_ties_by_order():
     sweep = gr.Sweep("l2", "k", (0.1, 1.0, 10.0))
-    assert gr.chosen_value(sweep, {0.1: 0.5, 1.0: None, 10.0: 0.9}) is None
-    assert gr.chosen_value(sweep, {0.1: 0.5, 1.0: 0.7, 10.0: 0.6}) == 1.0
-    assert gr.chosen_value(sweep, {0.1: 0.7, 1.0: 0.7, 10.0: 0.6}) == 0.1
+    assert grid_plan.chosen_value(sweep, {0.1: 0.5, 1.0: None, 10.0: 0.9}) is None
+    assert grid_plan.chosen_value(sweep, {0.1: 0.5, 1.0: 0.7, 10.0: 0.6}) == 1.0
+    assert grid_plan.chosen_value(sweep, {0.1: 0.7, 1.0: 0.7, 10.0: 0.6}) == 0.1
 
 
 def test_plan_runs_sweeps_first_then_the_seeds_at_the_best_value():
     grid = gr.grid_from_dict({**GRID, "streams": ["pointmaze-1"], "parts": {}}, "g")
     done: dict[str, float] = {"pointmaze-1/scn/seed0": 0.9}
-    plan = gr.plan_cells(grid, grid.streams, lambda c: done.get(c.name))
+    plan = grid_plan.plan_cells(grid, grid.streams, lambda c: done.get(c.name))
     assert [c.name for c in plan.done] == ["pointmaze-1/scn/seed0"]
     assert [c.name for c in plan.todo] == [
         "pointmaze-1/scn/seed1",
@@ -131,7 +133,7 @@ def test_plan_runs_sweeps_first_then_the_seeds_at_the_best_value():
 
     done.update({"pointmaze-1/l2-lambda0.1/seed0": 0.4, "pointmaze-1/l2-lambda1/seed0": 0.6})
     done["pointmaze-1/l2-lambda10/seed0"] = 0.5
-    plan = gr.plan_cells(grid, grid.streams, lambda c: done.get(c.name))
+    plan = grid_plan.plan_cells(grid, grid.streams, lambda c: done.get(c.name))
     ((target, source),) = plan.derived
     assert (target.name, source.name) == ("pointmaze-1/l2/seed0", "pointmaze-1/l2-lambda1/seed0")
     assert target.extra == source.extra == ("--model.init_args.penalty_lambda", "1")
@@ -141,15 +143,17 @@ def test_plan_runs_sweeps_first_then_the_seeds_at_the_best_value():
 
 def test_a_derived_run_has_the_command_of_its_source_but_for_where_it_logs(tmp_path):
     grid = gr.grid_from_dict(GRID, "g")
-    source = gr.Cell("pointmaze-1", "l2-lambda1", "l2", 0, ("--x", "1"), sweep=True)
-    target = gr.Cell("pointmaze-1", "l2", "l2", 0, ("--x", "1"))
-    a = gr.cell_run(source, grid, ROOT / "configs", tmp_path).argv
-    b = gr.cell_run(target, grid, ROOT / "configs", tmp_path).argv
+    source = grid_plan.Cell("pointmaze-1", "l2-lambda1", "l2", 0, ("--x", "1"), sweep=True)
+    target = grid_plan.Cell("pointmaze-1", "l2", "l2", 0, ("--x", "1"))
+    a = grid_plan.cell_run(source, grid, ROOT / "configs", tmp_path).argv
+    b = grid_plan.cell_run(target, grid, ROOT / "configs", tmp_path).argv
     differ = [(x, y) for x, y in zip(a, b, strict=True) if x != y]
     assert differ == [("l2-lambda1", "l2")]  # the logger's name: the run folder only
 
 
-def _committed(root: Path, cell: gr.Cell, tasks: list[str], config: dict | None = None) -> None:
+def _committed(
+    root: Path, cell: grid_plan.Cell, tasks: list[str], config: dict | None = None
+) -> None:
     run = cell.result_dir(root)
     run.mkdir(parents=True)
     R = [[0.5 if k <= i else None for k in range(len(tasks))] for i in range(len(tasks))]
@@ -159,21 +163,23 @@ def _committed(root: Path, cell: gr.Cell, tasks: list[str], config: dict | None 
 
 def test_committed_runs_of_an_older_stream_or_another_value_are_not_done(tmp_path):
     grid = gr.grid_from_dict(GRID, "g")
-    reader = gr.committed_reader(grid, ROOT / "configs", tmp_path)
-    tasks = gr.planned_tasks(
-        gr.cell_run(gr.Cell("pointmaze-1", "scn", "scn", 0), grid, ROOT / "configs", tmp_path)
+    reader = grid_plan.committed_reader(grid, ROOT / "configs", tmp_path)
+    tasks = planned_tasks(
+        grid_plan.cell_run(
+            grid_plan.Cell("pointmaze-1", "scn", "scn", 0), grid, ROOT / "configs", tmp_path
+        )
     )
-    ok = gr.Cell("pointmaze-1", "scn", "scn", 0)
-    old = gr.Cell("pointmaze-1", "scn", "scn", 1)
+    ok = grid_plan.Cell("pointmaze-1", "scn", "scn", 0)
+    old = grid_plan.Cell("pointmaze-1", "scn", "scn", 1)
     _committed(tmp_path, ok, tasks)
     _committed(tmp_path, old, ["pointmaze-umaze-N[500]"])
     assert reader(ok) == 0.5 and reader(old) is None
     flag = ("--model.init_args.penalty_lambda", "1")
     right, wrong = (
-        gr.Cell("pointmaze-2", "l2", "l2", 0, flag),
-        gr.Cell("pointmaze-2", "l2", "l2", 1, flag),
+        grid_plan.Cell("pointmaze-2", "l2", "l2", 0, flag),
+        grid_plan.Cell("pointmaze-2", "l2", "l2", 1, flag),
     )
-    tasks2 = gr.planned_tasks(gr.cell_run(right, grid, ROOT / "configs", tmp_path))
+    tasks2 = planned_tasks(grid_plan.cell_run(right, grid, ROOT / "configs", tmp_path))
     _committed(tmp_path, right, tasks2, {"model": {"init_args": {"penalty_lambda": 1.0}}})
     _committed(tmp_path, wrong, tasks2, {"model": {"init_args": {"penalty_lambda": 0.1}}})
     assert reader(right) == 0.5 and reader(wrong) is None
@@ -229,8 +235,8 @@ def test_grid_end_to_end_exports_derives_and_resumes(tiny_umaze, tmp_path, capsy
 
     # the derived seed trains exactly as a real run of its own command would
     grid = gr.load_grid("tiny", configs)
-    real = gr.cell_run(
-        gr.Cell("pointmaze-1", "scn", "scn", 0, ("--data.batch_size", str(best))),
+    real = grid_plan.cell_run(
+        grid_plan.Cell("pointmaze-1", "scn", "scn", 0, ("--data.batch_size", str(best))),
         grid,
         configs,
         tmp_path / "real",

@@ -14,13 +14,8 @@ from helpers import fit_tiny_stream
 
 from hispo_pl.benchmark.grid import grid_from_dict, load_grid
 from hispo_pl.benchmark.grid_report import Committed, grid_reports, write_grid_report
-from hispo_pl.benchmark.growth_report import (
-    Growth,
-    findings_markdown,
-    growth_data,
-    growth_markdown,
-    per_after_each_task,
-)
+from hispo_pl.benchmark.growth_curves import Growth, growth_data, per_after_each_task
+from hispo_pl.benchmark.growth_report import findings_markdown, growth_markdown
 from hispo_pl.rundir import RunDir
 from lab.embed import EMBED_BEGIN, EMBED_END, embed_reports
 

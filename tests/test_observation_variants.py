@@ -19,14 +19,8 @@ from hispo_pl.data.datasets import EpisodeArrays
 from hispo_pl.data.sampler import HERConfig, HERSampler
 from hispo_pl.errors import ConfigError
 from hispo_pl.nn.hierarchy import HierarchicalPolicy
-from hispo_pl.tasks import (
-    FAMILIES,
-    HIGH_INPUTS,
-    LOW_INPUTS,
-    OBSERVATION_VARIANTS,
-    parse_task,
-    unseen_variant_tasks,
-)
+from hispo_pl.task_families import FAMILIES, HIGH_INPUTS, LOW_INPUTS, OBSERVATION_VARIANTS
+from hispo_pl.tasks import parse_task, unseen_variant_tasks
 
 # every family whose agent has observation variants, and every input option of the configs
 VARIANT_FAMILIES = [

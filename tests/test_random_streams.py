@@ -8,14 +8,14 @@ from pathlib import Path
 import pytest
 
 from hispo_pl.benchmark import grid as gr
-from hispo_pl.benchmark import plan
+from hispo_pl.benchmark import grid_plan, plan
 from hispo_pl.benchmark.configs import datasets_needed
 from hispo_pl.cli import main as cli_main
 from hispo_pl.fit import check_fit_args
 from hispo_pl.results import LaunchRecord
 from hispo_pl.rundir import RunDir
+from hispo_pl.task_families import FAMILIES
 from hispo_pl.tasks import (
-    FAMILIES,
     TaskSpecError,
     parse_random_stream,
     parse_stream,
@@ -184,14 +184,16 @@ def test_a_grid_cell_of_a_random_stream_carries_its_name(tmp_path):
     grid = gr.grid_from_dict(
         {"streams": ["pointmaze-1", "random-pointmaze-12@0"], "methods": ["scn"], "seeds": 1}, "g"
     )
-    run = gr.cell_run(
-        gr.Cell("random-pointmaze-12@0", "scn", "scn", 0), grid, ROOT / "configs", tmp_path
+    run = grid_plan.cell_run(
+        grid_plan.Cell("random-pointmaze-12@0", "scn", "scn", 0), grid, ROOT / "configs", tmp_path
     )
     argv = list(run.argv)
     i = argv.index("--data.stream")
     assert argv[i + 1] == "random-pointmaze-12@0"
     assert run.configs[0] == (ROOT / "configs/streams/pointmaze-1.yaml").resolve()
     assert run.run_dir == (tmp_path / "random-pointmaze-12@0/runs/scn/seed0").resolve()
-    assert gr.planned_tasks(run) == [parse_task(s).spec for s in PINNED["random-pointmaze-12@0"]]
-    named = gr.cell_run(gr.Cell("pointmaze-1", "scn", "scn", 0), grid, ROOT / "configs", tmp_path)
+    assert plan.planned_tasks(run) == [parse_task(s).spec for s in PINNED["random-pointmaze-12@0"]]
+    named = grid_plan.cell_run(
+        grid_plan.Cell("pointmaze-1", "scn", "scn", 0), grid, ROOT / "configs", tmp_path
+    )
     assert "--data.stream" not in named.argv

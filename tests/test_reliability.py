@@ -797,7 +797,7 @@ def test_export_and_report_replace_links_at_the_destination(tmp_path, capsys):
 
 
 def test_the_grids_export_replaces_a_linked_config_and_refuses_a_linked_source(tmp_path):
-    from hispo_pl.benchmark.grid import Cell
+    from hispo_pl.benchmark.grid_plan import Cell
     from hispo_pl.benchmark.grid_run import export_cell
     from hispo_pl.errors import LinkedFileError
 
@@ -944,7 +944,8 @@ def test_the_paper_preset_without_a_conflicting_flag_trains_as_before(tmp_path, 
 
 
 def test_the_paper_protocol_grid_gives_no_flag_the_preset_sets(tmp_path):
-    from hispo_pl.benchmark.grid import Cell, cell_run, load_grid
+    from hispo_pl.benchmark.grid import load_grid
+    from hispo_pl.benchmark.grid_plan import Cell, cell_run
     from hispo_pl.config_files import config_root
     from hispo_pl.presets import apply_preset, given_keys
 

@@ -22,7 +22,8 @@ from hispo_pl.render import (
     maze_figure,
     rollout_paths,
 )
-from hispo_pl.tasks import FAMILIES, parse_task
+from hispo_pl.task_families import FAMILIES
+from hispo_pl.tasks import parse_task
 
 GAME_TASKS = [f"{g}-{m}" for g in ("amazeville", "simpletown") for m in FAMILIES[g].mazes]
 DRAWN_AS = {"wall": "#", "door-closed": "#", "block-high": "G", "block-low": "G"}

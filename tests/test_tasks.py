@@ -5,12 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hispo_pl.task_families import FAMILIES, VARIANTS
 from hispo_pl.tasks import (
     DEFAULT_EPISODES,
-    FAMILIES,
     GRAMMAR,
     STREAMS,
-    VARIANTS,
     Task,
     TaskSpecError,
     parse_stream,

@@ -16,12 +16,8 @@ import pytest
 
 from hispo_pl.data.datasets import episodes_to_arrays
 from hispo_pl.envs import VariantWrapper, make_env
-from hispo_pl.tasks import (
-    VARIANTS,
-    parse_task,
-    transform_action,
-    transform_observation,
-)
+from hispo_pl.task_families import VARIANTS
+from hispo_pl.tasks import parse_task, transform_action, transform_observation
 
 RESET = {"reset_cell": np.array([1, 1]), "goal_cell": np.array([3, 1])}
 SEED = 123
@@ -243,7 +239,7 @@ def test_generated_dataset_replays_in_wrapped_env(tiny_umaze, variant):
 def test_every_task_is_a_gymnasium_id():
     """``import hispo_pl.envs`` registers each maze variant and game maze with Gymnasium."""
     import hispo_pl.envs  # noqa: F401
-    from hispo_pl.tasks import FAMILIES
+    from hispo_pl.task_families import FAMILIES
 
     for family, fam in FAMILIES.items():
         for maze, defaults in fam.mazes.items():

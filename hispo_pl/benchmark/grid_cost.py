@@ -8,7 +8,8 @@ from pathlib import Path
 
 from ..rundir import RunDir
 from .finished_runs import RunRecord
-from .grid import SWEEPS_DIR, Grid, chosen_value
+from .grid import SWEEPS_DIR, Grid
+from .grid_plan import chosen_value
 from .tables import derived_footnote, derived_method, run_minutes
 
 PHASES = ("training", "evaluation", "search")

@@ -19,14 +19,9 @@ from ..metrics import METRICS
 from .finished_runs import MethodRow, RunRecord, aggregate, load_records, per_run_metrics
 from .grid import GRID_FILE, Grid
 from .grid_cost import cost_markdown, sweeps_markdown
-from .growth_report import (
-    findings_markdown,
-    growth_data,
-    growth_markdown,
-    has_random_streams,
-    memory_per_task_markdown,
-    write_growth_figures,
-)
+from .growth_curves import growth_data, has_random_streams
+from .growth_figures import write_growth_figures
+from .growth_report import findings_markdown, growth_markdown, memory_per_task_markdown
 from .tables import derived_footnote, derived_method
 from .transfer_report import PAC_METHOD, zero_shot_markdown
 
@@ -220,7 +215,7 @@ def aggregate_markdown(
 def plot_iqm_vs_memory(rows: Sequence[AggregateRow], path: Path, title: str) -> bool:
     """PER's IQM with its interval against mean MEM (False: no matplotlib)."""
     try:
-        from ..figures import iqm_vs_memory_figure
+        from ..perf_memory_figures import iqm_vs_memory_figure
     except ImportError:
         return False
     write_figure(iqm_vs_memory_figure(rows, title), path, dpi=150, bbox_inches="tight")

@@ -15,7 +15,8 @@ from ..io import atomic_write_text, copy_files, real_folder, refuse_linked
 from ..results import LaunchRecord
 from ..rundir import RunDir
 from .derive import derivable_run, derive_run, keep_last_siblings
-from .grid import Cell, Grid, cell_run, committed_reader, describe, plan_cells
+from .grid import Grid
+from .grid_plan import Cell, cell_run, committed_reader, describe, plan_cells
 from .plan import PLAN_FILE, PlannedRun, warn_provenance
 
 

@@ -4,190 +4,38 @@ MEM after each task is measured in the runs of the methods that decide their mem
 CSPO, HiLOW: each run's ``mem_per_task``) and grown from the structure of those whose memory
 follows from it (SCN, FTN, PNN: :mod:`.growth`), with the structure checked against the SCN
 runs; PER after each task comes from each run's success matrix. The grid report writes them for
-a grid with a random stream (:func:`has_random_streams`): ``growth.md`` (the fitted growth per
-method and stream, the check, the runs not committed yet), ``growth-findings.md`` (what the runs
-show, in sentences filled from them), ``memory_growth.png`` and ``per_after_task.png``.
+a grid with a random stream (:func:`~.growth_curves.has_random_streams`): ``growth.md`` (the
+fitted growth per method and stream, the check, the runs not committed yet), ``growth-findings.md``
+(what the runs show, in sentences filled from them), ``memory_growth.png`` and
+``per_after_task.png``. Here: the report's text; the curves it reads are :mod:`.growth_curves`'s,
+its figures :mod:`.growth_figures`'s.
 
-    data = growth_data(grid, Committed(root))
+    data = growth_data(grid, Committed(root))  # from .growth_curves
     print(growth_markdown(grid, data))
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from ..results import CriticDecision, Decision, LossDecision, ZeroShotDecision
-from ..tasks import parse_random_stream, parse_task, stream_specs
-
-STRUCTURAL = ("scn", "ftn", "pnn")  # memory from the structure alone (grown, not trained)
-FIGURES = ("memory_growth.png", "per_after_task.png")
-_ANCHORED = (LossDecision, CriticDecision, ZeroShotDecision)  # records that count anchors
-
-
-def has_random_streams(streams: Sequence[str]) -> bool:
-    """Whether a grid's streams include a random one: a study of long streams, which gets the
-    growth report."""
-    return any(parse_random_stream(s) is not None for s in streams)
-
-
-def family_of(stream: str) -> str:
-    """The task family a stream draws from: ``random-antmaze-8@3`` → ``antmaze``."""
-    random = parse_random_stream(stream)
-    return random[0] if random else parse_task(stream_specs(stream)[0]).family
-
-
-def per_after_each_task(R: Sequence[Sequence[float | None]]) -> list[float]:
-    """PER after each task ``k``: the mean success over the tasks seen so far, ``R[k][:k+1]``.
-
-    Example:
-        >>> per_after_each_task([[1.0, 0.0], [0.5, 1.0]])
-        [1.0, 0.75]
-    """
-    return [float(np.mean([float(v) for v in row[: k + 1]])) for k, row in enumerate(R)]
-
-
-def anchors_after_each_task(decisions: Sequence[Decision], n_tasks: int) -> list[int] | None:
-    """The anchors a run holds after each task, summed over its subspaces (each subspace's
-    count after its last decision of the task, kept until its next); None for a run that made
-    no decision on anchors (SCN, PNN)."""
-    counts: dict[str, int] = {}
-    after: list[int] = []
-    anchored = [d for d in decisions if isinstance(d, _ANCHORED) and d.anchors is not None]
-    if not anchored:
-        return None
-    for task in range(n_tasks):
-        for d in anchored:
-            if d.task == task:
-                counts[d.subspace] = int(d.anchors)
-        after.append(sum(counts.values()))
-    return after
-
-
-@dataclass(frozen=True)
-class Growth:
-    """How a curve of values after each task grows: per task over the first half of the
-    stream (tasks 2..h, h = n // 2) and over the last half (tasks h+1..n), the least-squares
-    slope over all n tasks, and the last value. Each is linear in the curve, so the growth of
-    the mean curve over seeds is the mean of the seeds' growths."""
-
-    first_half: float | None
-    last_half: float | None
-    slope: float | None
-    final: float
-
-    @classmethod
-    def of(cls, values: Sequence[float]) -> Growth:
-        """Example:
-        >>> Growth.of([1.0, 2.0, 2.5, 3.0])
-        Growth(first_half=1.0, last_half=0.5, slope=0.65, final=3.0)
-        """
-        v = np.asarray(values, dtype=float)
-        n, h = len(v), len(v) // 2
-        first = float((v[h - 1] - v[0]) / (h - 1)) if h >= 2 else None
-        last = float((v[-1] - v[h - 1]) / (n - h)) if h >= 1 else None
-        slope = float(np.polyfit(np.arange(1, n + 1), v, 1)[0]) if n >= 2 else None
-        return cls(first, last, None if slope is None else round(slope, 12), float(v[-1]))
-
-
-@dataclass(frozen=True)
-class RunCurves:
-    """One committed run's curves after each task: MEM (None: not measured after every task),
-    PER (from its success matrix) and the anchors it holds (None: it decides none)."""
-
-    stream: str
-    method: str
-    seed: int
-    memory: list[float] | None
-    per: list[float]
-    anchors: list[int] | None
-
-
-@dataclass
-class GrowthData:
-    """What the growth report draws from: each committed run's curves, the structural memory of
-    SCN / FTN / PNN per (family, method) for the family's longest stream, and the grid's cells
-    not committed yet as (stream, method, seed)."""
-
-    runs: list[RunCurves]
-    structure: dict[tuple[str, str], list[float]] = field(default_factory=dict)
-    missing: list[tuple[str, str, int]] = field(default_factory=list)
-    families: dict[str, list[str]] = field(default_factory=dict)  # family -> its streams
-
-    def of(self, family: str, method: str) -> list[RunCurves]:
-        streams = self.families.get(family, [])
-        return [r for r in self.runs if r.stream in streams and r.method == method]
-
-
-def growth_data(grid, committed, config_dir: Path | None = None) -> GrowthData:
-    """The curves of every committed run of ``grid`` (a :class:`~.grid.Grid`) under
-    ``committed`` (a :class:`~.grid_report.Committed`), the structural memory of the methods
-    whose memory follows from their structure (grown from ``config_dir``'s configs with the
-    grid's fit arguments, as long as the family's longest committed run or, before any, its
-    first stream), and the cells not committed yet."""
-    from ..config_files import config_root
-    from .growth import module_for, structural_memory
-    from .plan import stream_config_path, stream_fit_args
-
-    config_dir = Path(config_dir) if config_dir is not None else config_root()
-    families: dict[str, list[str]] = {}
-    for stream in grid.streams:
-        families.setdefault(family_of(stream), []).append(stream)
-    runs, missing = [], []
-    for stream in grid.streams:
-        done = {(r.method, r.seed): r for r in committed.records(stream)}
-        for method in grid.methods:
-            for seed in grid.seeds:
-                record = done.get((method, seed))
-                if record is None:
-                    missing.append((stream, method, seed))
-                    continue
-                results = record.results
-                memory = results.mem_per_task
-                runs.append(
-                    RunCurves(
-                        stream,
-                        method,
-                        seed,
-                        None if not memory or None in memory else [float(m) for m in memory],
-                        per_after_each_task(results.R),
-                        anchors_after_each_task(record.decisions, len(results.stream)),
-                    )
-                )
-    structure = {}
-    for family, streams in families.items():
-        lengths = [len(r.per) for r in runs if r.stream in streams]
-        n = max(lengths) if lengths else max(len(stream_specs(s)) for s in streams)
-        stream = streams[0]
-        for method in STRUCTURAL:
-            method_config = config_dir / "methods" / f"{method}.yaml"
-            if not method_config.is_file():
-                continue
-            configs = [stream_config_path(stream, config_dir), method_config]
-            module = module_for(configs, *stream_fit_args(stream), *grid.extra)
-            structure[(family, method)] = structural_memory(module, n)
-    return GrowthData(runs, structure, missing, families)
-
+from .growth_curves import (
+    STRUCTURAL,
+    Growth,
+    GrowthData,
+    RunCurves,
+    _family_title,
+    _mean_curve,
+    anchors_after_each_task,
+    has_random_streams,
+)
 
 # --- the report's text --------------------------------------------------------------------------
 
 
-def _family_title(family: str, streams: Sequence[str]) -> str:
-    lengths = sorted({len(stream_specs(s)) for s in streams})
-    tasks = "/".join(map(str, lengths))
-    return f"{family} ({len(streams)} stream{'s' * (len(streams) > 1)} of {tasks} tasks)"
-
-
 def _num(value: float | None, digits: int = 2) -> str:
     return "" if value is None else f"{value:.{digits}f}"
-
-
-def _mean_curve(curves: Sequence[Sequence[float]]) -> list[float]:
-    n = min(len(c) for c in curves)
-    return [float(v) for v in np.mean([list(c)[:n] for c in curves], axis=0)]
 
 
 def _row(method: str, stream: str, seeds: str, runs: Sequence[RunCurves]) -> str | None:
@@ -355,159 +203,6 @@ def findings_markdown(grid, data: GrowthData) -> str:
             lines.append(f"  From their structure: {'; '.join(structure)}.")
     lines.append("")
     return "\n".join(lines)
-
-
-# --- the figures --------------------------------------------------------------------------------
-
-
-def _styles(grid) -> dict[str, dict[str, str]]:
-    """Each method's marker and colour, the one it has in every figure."""
-    from ..figures import method_style
-
-    return {m: method_style(m) for m in dict.fromkeys([*grid.methods, *STRUCTURAL])}
-
-
-def _panels(data: GrowthData):
-    """A figure with one panel per family (those with runs; all of them before any)."""
-    from matplotlib.figure import Figure
-
-    families = [f for f, s in data.families.items() if any(r.stream in s for r in data.runs)]
-    families = families or list(data.families)
-    fig = Figure(figsize=(4.6 * len(families), 3.6), layout="constrained")
-    return fig, families, fig.subplots(1, len(families), squeeze=False)[0]
-
-
-def _draw(
-    ax, x_runs: Sequence[Sequence[float]], style: dict, label: str, scale: float = 1.0, z: int = 2
-):
-    """Each run thin, their mean thick with the method's marker (``z``: its drawing order)."""
-    for curve in x_runs:
-        ax.plot(
-            range(1, len(curve) + 1),
-            np.multiply(curve, scale),
-            color=style["color"],
-            lw=0.8,
-            alpha=0.35,
-        )
-    mean = np.multiply(_mean_curve(x_runs), scale)
-    ax.plot(
-        range(1, len(mean) + 1),
-        mean,
-        color=style["color"],
-        marker=style["fmt"],
-        lw=1.8,
-        ms=5 if style["fmt"] == "*" else 4,
-        zorder=z,
-        label=f"{label} ({len(x_runs)} run{'s' * (len(x_runs) > 1)})",
-    )
-
-
-def _task_axis(ax) -> None:
-    from matplotlib.ticker import MaxNLocator
-
-    ax.set_xlabel("tasks trained")
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    ax.grid(alpha=0.3)
-
-
-def memory_growth_figure(grid, data: GrowthData):
-    """MEM against tasks, one panel per family: the measured methods' runs and their mean,
-    the structural methods dashed; PNN's line leaves the top once it exceeds one network per
-    task, its last value written where it leaves."""
-    fig, families, axes = _panels(data)
-    styles = _styles(grid)
-    for ax, family in zip(axes, families, strict=True):
-        top = 1.0
-        for i, method in enumerate(grid.methods):  # the grid's first method drawn on top
-            curves = [r.memory for r in data.of(family, method) if r.memory is not None]
-            if curves and method not in STRUCTURAL:
-                _draw(ax, curves, styles[method], method, z=3 + len(grid.methods) - i)
-                top = max(top, *(max(c) for c in curves))
-        for method in STRUCTURAL:
-            grown = data.structure.get((family, method))
-            if grown is None:
-                continue
-            ax.plot(
-                range(1, len(grown) + 1),
-                grown,
-                ls="--",
-                lw=1.2,
-                color=styles[method]["color"],
-                label=f"{method} (structure)",
-            )
-            if method != "pnn":
-                top = max(top, max(grown))
-        scn = [r.memory for r in data.of(family, "scn") if r.memory is not None]
-        for curve in scn:
-            ax.plot(
-                range(1, len(curve) + 1),
-                curve,
-                ls="none",
-                marker="x",
-                ms=5,
-                color=styles["scn"]["color"],
-            )
-        if scn:
-            ax.plot(
-                [],
-                [],
-                ls="none",
-                marker="x",
-                color=styles["scn"]["color"],
-                label=f"scn measured ({len(scn)} run{'s' * (len(scn) > 1)})",
-            )
-        pnn = data.structure.get((family, "pnn"))
-        ax.set_ylim(0, top * 1.08)
-        if pnn is not None and max(pnn) > top * 1.08:
-            k = next(i for i, v in enumerate(pnn) if v > top * 1.08)
-            ax.annotate(
-                f" pnn: {pnn[-1]:.1f} at {len(pnn)} tasks",
-                (k + 1, top * 1.04),
-                fontsize=8,
-                ha="left",
-                va="top",
-                color=styles["pnn"]["color"],
-            )
-        ax.set_title(_family_title(family, data.families[family]), fontsize=9)
-        _task_axis(ax)
-        ax.legend(fontsize=7, loc="upper left")
-    axes[0].set_ylabel("MEM (× one single-task model)")
-    return fig
-
-
-def per_after_task_figure(grid, data: GrowthData):
-    """PER after each task (×100), one panel per family: each run thin, the method's mean
-    thick."""
-    fig, families, axes = _panels(data)
-    styles = _styles(grid)
-    for ax, family in zip(axes, families, strict=True):
-        for i, method in enumerate(grid.methods):
-            curves = [r.per for r in data.of(family, method)]
-            if curves:
-                _draw(ax, curves, styles[method], method, 100, 3 + len(grid.methods) - i)
-        ax.set_title(_family_title(family, data.families[family]), fontsize=9)
-        _task_axis(ax)
-        ax.set_ylim(-2, 102)
-        ax.legend(fontsize=7, loc="lower left")
-    axes[0].set_ylabel("PER after the task (success ×100)")
-    return fig
-
-
-def write_growth_figures(grid, data: GrowthData, out: Path) -> list[Path]:
-    """Both figures into ``out`` (none before any run, or without matplotlib)."""
-    if not data.runs:
-        return []
-    try:
-        import matplotlib.figure  # noqa: F401
-    except ImportError:
-        return []
-    from ..io import write_figure
-
-    written = []
-    for name, draw in zip(FIGURES, (memory_growth_figure, per_after_task_figure), strict=True):
-        write_figure(draw(grid, data), Path(out) / name, dpi=130, bbox_inches="tight")
-        written.append(Path(out) / name)
-    return written
 
 
 # --- memory after each task on a grid's fixed streams (the paper's Figure 3) ---------------------

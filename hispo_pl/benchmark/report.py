@@ -31,7 +31,7 @@ def plot_perf_vs_memory(rows: Sequence[MethodRow], path: Path, stream: str = "")
     try:
         import matplotlib.figure  # noqa: F401  (checked here: figures may be imported already)
 
-        from ..figures import perf_vs_memory_figure  # matplotlib, without pyplot
+        from ..perf_memory_figures import perf_vs_memory_figure  # matplotlib, without pyplot
     except ImportError:
         print(
             "[benchmark] matplotlib is not installed: no perf_vs_memory.png (pip install "

@@ -2,23 +2,16 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from typing import Literal
 
 import lightning as L
 import torch
-from torch.utils.data import DataLoader, IterableDataset
+from torch.utils.data import DataLoader
 
 from ..errors import ConfigError
-from ..tasks import (
-    HIGH_INPUTS,
-    LOW_INPUTS,
-    Task,
-    parse_stream,
-    parse_task,
-    unseen_variant_tasks,
-    unseen_variants_message,
-)
+from ..task_families import HIGH_INPUTS, LOW_INPUTS
+from ..tasks import Task, parse_stream, parse_task, unseen_variant_tasks, unseen_variants_message
+from .batch_stream import _Batches
 from .datasets import (
     DatasetUse,
     EpisodeArrays,
@@ -29,24 +22,6 @@ from .datasets import (
 )
 from .generation import generate_missing
 from .sampler import DeviceHERSampler, HERConfig, HERSampler, Horizon, MixedSampler, Strategy
-
-
-class _Batches(IterableDataset):
-    """An endless-looking stream of ready-made batches (``steps`` per epoch), or of groups of
-    ``group`` batches (``[group, B, ...]`` tensors) when ``group`` > 1."""
-
-    def __init__(self, sampler: HERSampler, steps: int, group: int = 1):
-        self.sampler, self.steps, self.group = sampler, steps, group
-
-    def __len__(self) -> int:
-        return self.steps
-
-    def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
-        for _ in range(self.steps):
-            yield (
-                self.sampler.sample() if self.group == 1 else self.sampler.sample_group(self.group)
-            )
-
 
 DEFAULT_TASK = "pointmaze-umaze-N[500]"
 Split = Literal["train", "heldout"]

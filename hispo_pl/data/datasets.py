@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
+from ..task_families import FAMILIES
 from ..tasks import (
-    FAMILIES,
     Task,
     agent_position,
     parse_task,

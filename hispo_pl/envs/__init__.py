@@ -7,7 +7,8 @@ import os
 
 import gymnasium as gym
 
-from ..tasks import FAMILIES, Task, parse_task
+from ..task_families import FAMILIES
+from ..tasks import Task, parse_task
 from .family import family_behaviour
 from .wrappers import VariantWrapper
 

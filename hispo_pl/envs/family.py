@@ -12,7 +12,8 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
-from ..tasks import Family, Task
+from ..task_families import Family
+from ..tasks import Task
 
 if TYPE_CHECKING:
     import gymnasium as gym

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...tasks import FAMILIES
+from ...task_families import FAMILIES
 
 WALL_HEIGHT = 3.0
 HIGH_BLOCK = 3.0  # H mazes: not jumpable

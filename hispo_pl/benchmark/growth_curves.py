@@ -1,0 +1,178 @@
+"""The curves of a grid's long streams after each task, which the growth report writes and
+draws (:mod:`.growth_report`, :mod:`.growth_figures`): MEM after each task, measured in the runs
+of the methods that decide their memory (HiSPO, CSPO, HiLOW: each run's ``mem_per_task``) and
+grown from the structure of those whose memory follows from it (SCN, FTN, PNN: :mod:`.growth`);
+PER after each task from each run's success matrix; the anchors held after each task; and how a
+curve grows (:class:`Growth`).
+
+    data = growth_data(grid, Committed(root))
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..results import CriticDecision, Decision, LossDecision, ZeroShotDecision
+from ..tasks import parse_random_stream, parse_task, stream_specs
+
+STRUCTURAL = ("scn", "ftn", "pnn")  # memory from the structure alone (grown, not trained)
+_ANCHORED = (LossDecision, CriticDecision, ZeroShotDecision)  # records that count anchors
+
+
+def has_random_streams(streams: Sequence[str]) -> bool:
+    """Whether a grid's streams include a random one: a study of long streams, which gets the
+    growth report."""
+    return any(parse_random_stream(s) is not None for s in streams)
+
+
+def family_of(stream: str) -> str:
+    """The task family a stream draws from: ``random-antmaze-8@3`` → ``antmaze``."""
+    random = parse_random_stream(stream)
+    return random[0] if random else parse_task(stream_specs(stream)[0]).family
+
+
+def per_after_each_task(R: Sequence[Sequence[float | None]]) -> list[float]:
+    """PER after each task ``k``: the mean success over the tasks seen so far, ``R[k][:k+1]``.
+
+    Example:
+        >>> per_after_each_task([[1.0, 0.0], [0.5, 1.0]])
+        [1.0, 0.75]
+    """
+    return [float(np.mean([float(v) for v in row[: k + 1]])) for k, row in enumerate(R)]
+
+
+def anchors_after_each_task(decisions: Sequence[Decision], n_tasks: int) -> list[int] | None:
+    """The anchors a run holds after each task, summed over its subspaces (each subspace's
+    count after its last decision of the task, kept until its next); None for a run that made
+    no decision on anchors (SCN, PNN)."""
+    counts: dict[str, int] = {}
+    after: list[int] = []
+    anchored = [d for d in decisions if isinstance(d, _ANCHORED) and d.anchors is not None]
+    if not anchored:
+        return None
+    for task in range(n_tasks):
+        for d in anchored:
+            if d.task == task:
+                counts[d.subspace] = int(d.anchors)
+        after.append(sum(counts.values()))
+    return after
+
+
+@dataclass(frozen=True)
+class Growth:
+    """How a curve of values after each task grows: per task over the first half of the
+    stream (tasks 2..h, h = n // 2) and over the last half (tasks h+1..n), the least-squares
+    slope over all n tasks, and the last value. Each is linear in the curve, so the growth of
+    the mean curve over seeds is the mean of the seeds' growths."""
+
+    first_half: float | None
+    last_half: float | None
+    slope: float | None
+    final: float
+
+    @classmethod
+    def of(cls, values: Sequence[float]) -> Growth:
+        """Example:
+        >>> Growth.of([1.0, 2.0, 2.5, 3.0])
+        Growth(first_half=1.0, last_half=0.5, slope=0.65, final=3.0)
+        """
+        v = np.asarray(values, dtype=float)
+        n, h = len(v), len(v) // 2
+        first = float((v[h - 1] - v[0]) / (h - 1)) if h >= 2 else None
+        last = float((v[-1] - v[h - 1]) / (n - h)) if h >= 1 else None
+        slope = float(np.polyfit(np.arange(1, n + 1), v, 1)[0]) if n >= 2 else None
+        return cls(first, last, None if slope is None else round(slope, 12), float(v[-1]))
+
+
+@dataclass(frozen=True)
+class RunCurves:
+    """One committed run's curves after each task: MEM (None: not measured after every task),
+    PER (from its success matrix) and the anchors it holds (None: it decides none)."""
+
+    stream: str
+    method: str
+    seed: int
+    memory: list[float] | None
+    per: list[float]
+    anchors: list[int] | None
+
+
+@dataclass
+class GrowthData:
+    """What the growth report draws from: each committed run's curves, the structural memory of
+    SCN / FTN / PNN per (family, method) for the family's longest stream, and the grid's cells
+    not committed yet as (stream, method, seed)."""
+
+    runs: list[RunCurves]
+    structure: dict[tuple[str, str], list[float]] = field(default_factory=dict)
+    missing: list[tuple[str, str, int]] = field(default_factory=list)
+    families: dict[str, list[str]] = field(default_factory=dict)  # family -> its streams
+
+    def of(self, family: str, method: str) -> list[RunCurves]:
+        streams = self.families.get(family, [])
+        return [r for r in self.runs if r.stream in streams and r.method == method]
+
+
+def growth_data(grid, committed, config_dir: Path | None = None) -> GrowthData:
+    """The curves of every committed run of ``grid`` (a :class:`~.grid.Grid`) under
+    ``committed`` (a :class:`~.grid_report.Committed`), the structural memory of the methods
+    whose memory follows from their structure (grown from ``config_dir``'s configs with the
+    grid's fit arguments, as long as the family's longest committed run or, before any, its
+    first stream), and the cells not committed yet."""
+    from ..config_files import config_root
+    from .growth import module_for, structural_memory
+    from .plan import stream_config_path, stream_fit_args
+
+    config_dir = Path(config_dir) if config_dir is not None else config_root()
+    families: dict[str, list[str]] = {}
+    for stream in grid.streams:
+        families.setdefault(family_of(stream), []).append(stream)
+    runs, missing = [], []
+    for stream in grid.streams:
+        done = {(r.method, r.seed): r for r in committed.records(stream)}
+        for method in grid.methods:
+            for seed in grid.seeds:
+                record = done.get((method, seed))
+                if record is None:
+                    missing.append((stream, method, seed))
+                    continue
+                results = record.results
+                memory = results.mem_per_task
+                runs.append(
+                    RunCurves(
+                        stream,
+                        method,
+                        seed,
+                        None if not memory or None in memory else [float(m) for m in memory],
+                        per_after_each_task(results.R),
+                        anchors_after_each_task(record.decisions, len(results.stream)),
+                    )
+                )
+    structure = {}
+    for family, streams in families.items():
+        lengths = [len(r.per) for r in runs if r.stream in streams]
+        n = max(lengths) if lengths else max(len(stream_specs(s)) for s in streams)
+        stream = streams[0]
+        for method in STRUCTURAL:
+            method_config = config_dir / "methods" / f"{method}.yaml"
+            if not method_config.is_file():
+                continue
+            configs = [stream_config_path(stream, config_dir), method_config]
+            module = module_for(configs, *stream_fit_args(stream), *grid.extra)
+            structure[(family, method)] = structural_memory(module, n)
+    return GrowthData(runs, structure, missing, families)
+
+
+def _family_title(family: str, streams: Sequence[str]) -> str:
+    lengths = sorted({len(stream_specs(s)) for s in streams})
+    tasks = "/".join(map(str, lengths))
+    return f"{family} ({len(streams)} stream{'s' * (len(streams) > 1)} of {tasks} tasks)"
+
+
+def _mean_curve(curves: Sequence[Sequence[float]]) -> list[float]:
+    n = min(len(c) for c in curves)
+    return [float(v) for v in np.mean([list(c)[:n] for c in curves], axis=0)]
