@@ -2,9 +2,9 @@
 
 A method takes them as ``backbone`` and ``optim`` (``--model.init_args.backbone.low_hidden 128``,
 ``--model.init_args.optim.lr 1e-3``) and stores them in its hyperparameters as plain dicts, so
-a checkpoint still loads with ``weights_only=True``. Checkpoints and run fingerprints written
-before these configs existed kept every field flat; :func:`upgrade_hparams` and
-:func:`upgrade_fingerprint` read them. No torch here: reports and scripts import it freely.
+a checkpoint still loads with ``weights_only=True``. Checkpoints written before these configs
+existed kept every field flat; :func:`upgrade_hparams` reads them. No torch here: reports and
+scripts import it freely.
 """
 
 from __future__ import annotations
@@ -112,7 +112,7 @@ def plain(config: BackboneConfig | OptimConfig) -> dict:
 
 
 _BACKBONE_FIELDS = tuple(f.name for f in fields(BackboneConfig) if f.name != "kind")
-# flat hyperparameter -> (config, field), as checkpoints and fingerprints had them
+# flat hyperparameter -> (config, field), as checkpoints had them
 _LEGACY = {
     **{name: ("backbone", name) for name in _BACKBONE_FIELDS},
     "hidden": ("backbone", "low_hidden"),  # flat BC's one width
@@ -147,21 +147,4 @@ def upgrade_hparams(hparams: Mapping) -> dict:
     for group, values in nested.items():
         if values:
             out[group] = dict(sorted(values.items(), key=lambda kv: kv[0] != "kind"))
-    return out
-
-
-def upgrade_fingerprint(fingerprint: Mapping) -> dict:
-    """A run fingerprint (``model.init_args.lr: 0.001``...) with flat model keys renamed as
-    this version spells them (``model.init_args.optim.lr``), so that a run directory written
-    before the configs existed still resumes under the same settings."""
-    prefix = "model.init_args."
-    out = {}
-    for key, value in fingerprint.items():
-        name = key[len(prefix) :] if key.startswith(prefix) else None
-        if name in _LEGACY:
-            group, field = _LEGACY[name]
-            key = f"{prefix}{group}.{field}"
-        elif name == "backbone":
-            key = f"{prefix}backbone.kind"
-        out[key] = value
     return out

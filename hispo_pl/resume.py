@@ -16,11 +16,9 @@ import lightning as L
 import numpy as np
 import torch
 
-from .config import upgrade_fingerprint
 from .errors import RunDirError
 from .io import atomic_save, named_errors, open_append
 from .results import Progress
-from .run_checks import upgrade_callback_keys
 from .rundir import RunDir
 
 
@@ -162,12 +160,6 @@ class MissingCheckpointError(RunDirError, FileNotFoundError):
     """``progress.json`` lists a finished task whose checkpoint is gone."""
 
 
-def stored_fingerprint(stored: dict) -> dict:
-    """A stored fingerprint as :func:`~hispo_pl.run_checks.run_fingerprint` spells it now,
-    whichever version wrote it (flat model keys, callbacks by list position)."""
-    return upgrade_fingerprint(upgrade_callback_keys(stored))
-
-
 def resume_progress(run_dir: RunDir, stream: list[str], fingerprint: dict | None) -> Progress:
     """The progress a run of ``stream`` goes on from in ``run_dir``: the stored one, or a fresh
     one when there is none or the stored run never trained a step.
@@ -186,7 +178,6 @@ def resume_progress(run_dir: RunDir, stream: list[str], fingerprint: dict | None
             "choose another run directory (e.g. --trainer.logger.init_args.version)"
         )
     stored = progress.fingerprint
-    stored = stored_fingerprint(stored) if stored is not None else None
     differing = differing_keys(stored or {}, fingerprint or {})
     started = progress.rows or run_dir.partial_checkpoint(0).exists()
     if differing and not started:  # refused or stopped before its first step: no mixing
@@ -199,6 +190,4 @@ def resume_progress(run_dir: RunDir, stream: list[str], fingerprint: dict | None
             "stored settings to resume, or give this run another directory (e.g. "
             "--trainer.logger.init_args.version)"
         )
-    if fingerprint is not None and stored is None:
-        progress.fingerprint = fingerprint  # a run from before fingerprints
     return progress

@@ -5,8 +5,6 @@ fingerprint that keeps a resumed stream on the settings it started with."""
 from __future__ import annotations
 
 import json
-import re
-from collections.abc import Mapping
 
 from .decisions import tolerance_problem
 from .errors import ConfigError
@@ -245,28 +243,3 @@ def run_fingerprint(config: dict) -> dict:
 
     walk(plain_config(config), "")
     return flat
-
-
-_POSITIONAL_CALLBACK = re.compile(r"trainer\.callbacks\[(\d+)\]\.(.+)")
-
-
-def upgrade_callback_keys(fingerprint: Mapping) -> dict:
-    """A fingerprint whose callbacks are keyed by list position
-    (``trainer.callbacks[2].init_args.eps_low``, as runs before class keys stored it) with
-    the keys :func:`run_fingerprint` writes now (``trainer.callbacks[SubspacePruning]...``);
-    other keys pass unchanged, so a run directory of either kind resumes."""
-    positional = {}
-    for key in fingerprint:
-        match = _POSITIONAL_CALLBACK.fullmatch(key)
-        if match:
-            positional[key] = (int(match.group(1)), match.group(2))
-    paths = {i: fingerprint[k] for k, (i, rest) in positional.items() if rest == "class_path"}
-    order = sorted(paths)
-    labels = dict(zip(order, callback_labels([paths[i] for i in order]), strict=True))
-    out = {}
-    for key, value in fingerprint.items():
-        if key in positional and positional[key][0] in labels:
-            i, rest = positional[key]
-            key = f"trainer.callbacks[{labels[i]}].{rest}"
-        out[key] = value
-    return out

@@ -21,6 +21,10 @@ the notebook import it freely.
 ``fit.log``               the output of a run the benchmark launched
 ``run.lock``              held while a run uses the directory
 ========================  =====================================================================
+
+Each JSON file starts with its format number (``"format": 1``, :data:`~hispo_pl.results.
+json_fields.FORMAT_KEY`); a reader refuses a file without the number its type writes, and
+``python -m lab migrate FOLDER`` (the repository's lab) rewrites older files into it.
 """
 
 from __future__ import annotations
@@ -34,7 +38,24 @@ import numpy as np
 
 from .errors import RunDirError
 from .io import atomic_save, atomic_write_text, named_errors, open_append, real_folder
-from .results import Decision, LaunchRecord, Progress, StreamResults, TaskFitResult
+from .results import (
+    LAUNCH_FORMAT,
+    PROGRESS_FORMAT,
+    PROGRESS_KEYS,
+    RESULT_FORMAT,
+    RESULT_KEYS,
+    RESULTS_FORMAT,
+    RESULTS_KEYS,
+    Decision,
+    LaunchRecord,
+    Progress,
+    StreamResults,
+    TaskFitResult,
+)
+from .results.json_fields import FORMAT_KEY, format_problem, missing_keys, stamped
+
+MIGRATE = "python -m lab migrate"
+"""The repository's command that rewrites run files of an older format into the current one."""
 
 
 def task_label(index: int) -> int:
@@ -65,6 +86,47 @@ def read_json_object(path: Path, holds: str) -> dict:
             f"{path} holds a JSON {type(value).__name__}, not an object; it should hold {holds}"
         )
     return value
+
+
+def read_run_file(path: Path, holds: str, number: int, keys: Sequence[str] = ()) -> dict:
+    """The JSON object in ``path``, a run file of format ``number`` holding every key of
+    ``keys``, without its format number.
+
+    Raises:
+        RunDirError: the file is not a JSON object, is of another format (what to run to
+            migrate it named), or lacks a key."""
+    record = read_json_object(path, holds)
+    problem = format_problem(record, number)
+    if problem is not None:
+        raise RunDirError(
+            f"{path} {problem}; it should hold {holds} in format {number}: rewrite it with "
+            f"`{MIGRATE} {path.parent}` in the hispo-pl repository"
+        )
+    missing = missing_keys(record, keys)
+    if missing:
+        raise RunDirError(f"{path} has no {', '.join(missing)}; it should hold {holds}")
+    return {k: v for k, v in record.items() if k != FORMAT_KEY}
+
+
+RUN_FILES = {
+    "results.json": (RESULTS_FORMAT, 1, ""),
+    "progress.json": (PROGRESS_FORMAT, 1, ""),
+    "result.json": (RESULT_FORMAT, 2, "\n"),
+    "run.json": (LAUNCH_FORMAT, 1, ""),
+}
+"""Each JSON run file's format number, JSON indent and what follows the JSON, by name."""
+
+
+def run_file_text(name: str, record: dict) -> str:
+    """The text of the JSON run file ``name`` holding ``record`` (a type's ``to_json()``): its
+    format number first, then the record's keys in their order.
+
+    Example:
+        >>> run_file_text("run.json", {"method": "ft1"})
+        '{\\n "format": 1,\\n "method": "ft1"\\n}'
+    """
+    number, indent, end = RUN_FILES[name]
+    return json.dumps(stamped(number, record), indent=indent) + end
 
 
 def _require_lists(path: Path, record: dict, keys: Sequence[str], holds: str) -> None:
@@ -105,8 +167,9 @@ def read_results_file(path: Path) -> StreamResults:
     """A stream's ``results.json`` at ``path``, checked with :func:`results_problem`.
 
     Raises:
-        RunDirError: the file is not JSON, not an object, or its R does not fit its stream."""
-    results = read_json_object(path, "a finished stream's results")
+        RunDirError: the file is not JSON, not an object, not of format
+            :data:`~hispo_pl.results.RESULTS_FORMAT`, or its R does not fit its stream."""
+    results = read_run_file(path, "a finished stream's results", RESULTS_FORMAT, RESULTS_KEYS)
     problem = results_problem(results)
     if problem is not None:
         raise RunDirError(f"{path} cannot be tabulated: {problem}")
@@ -221,12 +284,14 @@ class RunDir:
         """``progress.json``, or None before the first task started.
 
         Raises:
-            RunDirError: the file is not a JSON object with the lists ``stream`` and ``rows``.
+            RunDirError: the file is not a JSON object of format
+                :data:`~hispo_pl.results.PROGRESS_FORMAT` with the lists ``stream`` and
+                ``rows``.
         """
         if not self.progress_file.exists():
             return None
-        holds = "a stream's progress; move the run directory away to start over"
-        progress = read_json_object(self.progress_file, holds)
+        holds = "a stream's progress"
+        progress = read_run_file(self.progress_file, holds, PROGRESS_FORMAT, PROGRESS_KEYS)
         _require_lists(self.progress_file, progress, ("stream", "rows"), holds)
         return Progress.from_json(progress)
 
@@ -238,7 +303,7 @@ class RunDir:
         return stream[task] if 0 <= task < len(stream) else None
 
     def write_progress(self, progress: Progress) -> None:
-        atomic_write_text(self.progress_file, json.dumps(progress.to_json(), indent=1))
+        atomic_write_text(self.progress_file, run_file_text(self.PROGRESS, progress.to_json()))
 
     def has_results(self) -> bool:
         return self.results_file.exists()
@@ -247,12 +312,13 @@ class RunDir:
         """``results.json``, checked to be tabulable (:func:`results_problem`).
 
         Raises:
-            RunDirError: the file is not JSON, not an object, or its R does not fit its stream.
+            RunDirError: the file is not JSON, not an object, not of the current format, or
+                its R does not fit its stream.
         """
         return read_results_file(self.results_file)
 
     def write_results(self, results: StreamResults) -> None:
-        atomic_write_text(self.results_file, json.dumps(results.to_json(), indent=1))
+        atomic_write_text(self.results_file, run_file_text(self.RESULTS, results.to_json()))
 
     def write_task_config(self, task: int, text: str) -> None:
         atomic_write_text(self.task_config(task), text)
@@ -311,31 +377,28 @@ class RunDir:
         """A single-task fit's ``result.json``.
 
         Raises:
-            RunDirError: the file is not a JSON object with every key of a result."""
+            RunDirError: the file is not a JSON object of format
+                :data:`~hispo_pl.results.RESULT_FORMAT` with every key of a result."""
         holds = "a single-task fit's evaluation"
-        record = read_json_object(self.result_file, holds)
-        try:
-            return TaskFitResult.from_json(record)
-        except KeyError as err:
-            raise RunDirError(
-                f"{self.result_file} has {err.args[0]}; it should hold {holds}"
-            ) from None
+        record = read_run_file(self.result_file, holds, RESULT_FORMAT, RESULT_KEYS)
+        return TaskFitResult.from_json(record)
 
     def write_result(self, result: TaskFitResult) -> None:
-        atomic_write_text(self.result_file, json.dumps(result.to_json(), indent=2) + "\n")
+        atomic_write_text(self.result_file, run_file_text(self.RESULT, result.to_json()))
 
     def read_run_record(self) -> LaunchRecord:
         """The benchmark's ``run.json`` (empty for a run it did not launch).
 
         Raises:
-            RunDirError: the file is not a JSON object."""
+            RunDirError: the file is not a JSON object of format
+                :data:`~hispo_pl.results.LAUNCH_FORMAT`."""
         if not self.run_record_file.exists():
             return LaunchRecord()
         holds = "the benchmark's record of the run"
-        return LaunchRecord.from_json(read_json_object(self.run_record_file, holds))
+        return LaunchRecord.from_json(read_run_file(self.run_record_file, holds, LAUNCH_FORMAT))
 
     def write_run_record(self, record: LaunchRecord) -> None:
-        atomic_write_text(self.run_record_file, json.dumps(record.to_json(), indent=1))
+        atomic_write_text(self.run_record_file, run_file_text(self.RUN_RECORD, record.to_json()))
 
 
 def _decision(line: str) -> Decision | None:

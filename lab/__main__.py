@@ -6,6 +6,7 @@ launch a benchmark whose runs record the checkout's commit.
     python -m lab claims                        # docs/results/claims/claims.md
     python -m lab manifests                     # docs/results/*/MANIFEST.md
     python -m lab rebuild-docs README.md docs/results.md   # the reports the pages embed
+    python -m lab migrate [docs/results] [--check]  # run files of earlier formats -> current
     python -m lab benchmark --grid paper --out results/grid --export docs/results
 """
 
@@ -110,6 +111,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     verbs.add_parser("claims", help=f"{CLAIMS}/claims.md")
     made = verbs.add_parser("manifests", help="the MANIFEST.md of every reference folder")
     made.add_argument("root", nargs="?", type=Path, default=RESULTS)
+    moved = verbs.add_parser("migrate", help="rewrite run files of earlier formats as current")
+    moved.add_argument("root", nargs="?", type=Path, default=RESULTS)
+    moved.add_argument("--check", action="store_true", help="only say which files would change")
     verbs.add_parser("benchmark", help="hispo-pl benchmark, recording the checkout's commit")
     argv = list(sys.argv[1:] if argv is None else argv)
     verb = argv[0] if argv[:1] == ["benchmark"] else None
@@ -117,6 +121,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if verb:  # every other argument is the benchmark's
             return benchmark(argv[1:])
+        if args.verb == "migrate":
+            from .migrate import migrate
+
+            return migrate(args.root, check=args.check)
         run(args)
     except UserError as err:  # a flag, page or run file to fix: one line, as hispo-pl says it
         print(f"python -m lab {verb or args.verb}: {err}", file=sys.stderr)

@@ -9,12 +9,7 @@ import pytest
 import torch
 from helpers import FLOAT32_REORDERED
 
-from hispo_pl.config import (
-    BackboneConfig,
-    OptimConfig,
-    upgrade_fingerprint,
-    upgrade_hparams,
-)
+from hispo_pl.config import BackboneConfig, OptimConfig, upgrade_hparams
 from hispo_pl.modules import HBC, HiSPO
 from hispo_pl.modules.checkpoints import read_checkpoint
 from hispo_pl.modules.hbc import GoalConditionedBC
@@ -61,23 +56,6 @@ def test_a_new_checkpoint_holds_plain_values(tmp_path):
     assert loaded["hyper_parameters"]["backbone"]["low_obs"] is False
     again = GoalConditionedBC.from_checkpoint_file(str(tmp_path / "m.ckpt"))
     assert again.backbone_config == module.backbone_config
-
-
-def test_a_run_fingerprint_of_the_previous_version_matches_the_new_keys():
-    old = {
-        "model.init_args.lr": 0.001,
-        "model.init_args.low_hidden": 256,
-        "model.init_args.backbone": "bc",
-        "model.init_args.anchor_init": "mean",
-        "data.batch_size": 1024,
-    }
-    assert upgrade_fingerprint(old) == {
-        "model.init_args.optim.lr": 0.001,
-        "model.init_args.backbone.low_hidden": 256,
-        "model.init_args.backbone.kind": "bc",
-        "model.init_args.anchor_init": "mean",
-        "data.batch_size": 1024,
-    }
 
 
 def test_an_unknown_backbone_kind_is_refused():

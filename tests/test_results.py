@@ -20,11 +20,12 @@ from hispo_pl.results import (
     decisions_table,
     fwt_reference,
 )
-from hispo_pl.rundir import RunDir
+from hispo_pl.rundir import RunDir, run_file_text
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "docs" / "results"
-# runs of different ages: before phase times, before datasets, with both; CSP's critic records
+# runs of different ages (written before phase times and datasets were recorded, migrated:
+# null there; with both); CSP's critic records
 OLD = RESULTS / "earlier-defaults" / "pointmaze-1" / "hispo" / "seed0"
 NEW = RESULTS / "pointmaze-1-paper" / "hispo" / "seed0"
 CRITIC = RESULTS / "antmaze-2" / "csp" / "seed0"
@@ -46,8 +47,9 @@ def test_a_committed_run_round_trips_byte_for_byte(run, tmp_path):
 
 
 def test_the_committed_runs_are_of_different_ages():
-    keys = [set(json.loads((run / "results.json").read_text())) for run in (OLD, NEW)]
-    assert "phase_time_s" not in keys[0] and {"phase_time_s", "datasets"} <= keys[1]
+    old, new = (RunDir(run).stream_results() for run in (OLD, NEW))
+    assert old.phase_time_s is None and old.datasets is None and old.mem_per_task is None
+    assert None not in new.phase_time_s and None not in new.datasets
 
 
 def test_every_committed_file_reads_and_writes_back_unchanged(tmp_path):
@@ -55,12 +57,12 @@ def test_every_committed_file_reads_and_writes_back_unchanged(tmp_path):
         for line in path.read_text().splitlines():
             assert json.dumps(Decision.from_json(json.loads(line)).to_json()) == line, path
     for path in _committed("results.json"):
-        text = json.dumps(StreamResults.from_json(json.loads(path.read_text())).to_json(), indent=1)
+        text = run_file_text(path.name, RunDir(path.parent).stream_results().to_json())
         assert text == path.read_text(), path
     for path in _committed("result.json"):
         result = RunDir(path.parent).read_result()
         assert 0.0 <= result.success <= 1.0, path
-        assert json.dumps(result.to_json(), indent=2) + "\n" == path.read_text(), path
+        assert run_file_text(path.name, result.to_json()) == path.read_text(), path
     for path in _committed("run.json"):
         copy = RunDir(tmp_path / path.parent.relative_to(RESULTS))
         copy.path.mkdir(parents=True)
@@ -155,8 +157,9 @@ def test_stream_results_order_the_model_metrics_after_the_stored_bytes():
         stored_bytes=300,
     )
     keys = list(results.to_json())
-    assert keys == ["stream", "R", "wall_time_s", "PER", "BWT", "FWT", "stored_bytes", "MEM"] + [
-        "table"
-    ]
+    times = ["wall_time_s", "phase_time_s", "datasets"]
+    model = ["stored_bytes", "MEM", "mem_per_task"]
+    assert keys == ["stream", "R", *times, "PER", "BWT", "FWT", *model, "table"]
+    assert results.to_json()["datasets"] is None  # not recorded: null, the key is there
     np.testing.assert_array_equal(np.isnan(results.matrix), [[False, True], [False, False]])
     assert fwt_reference(results, 2) == [0.8, 0.9] and fwt_reference(results, 3) is None

@@ -1,6 +1,7 @@
-"""Resuming a stream across versions and edits: callbacks keep their own checkpoint entries
-(``state_key``), and the run fingerprint names callbacks by class, so a reordered callback list
-resumes while a changed argument is refused. Tiny budgets."""
+"""Resuming a stream across edits: callbacks keep their own checkpoint entries (``state_key``),
+and the run fingerprint names callbacks by class, so a reordered callback list resumes while a
+changed argument is refused; a progress file of an earlier format is refused until migrated.
+Tiny budgets."""
 
 from __future__ import annotations
 
@@ -14,8 +15,7 @@ from probes import TINY_HISPO, stream_dir
 
 from hispo_pl.callbacks import DirichletEvaluation, RolloutEvaluation
 from hispo_pl.cli import main
-from hispo_pl.resume import stored_fingerprint
-from hispo_pl.run_checks import callback_labels, run_fingerprint, upgrade_callback_keys
+from hispo_pl.run_checks import callback_labels, run_fingerprint
 
 REORDERED = TINY_HISPO.replace(
     "    - class_path: hispo_pl.callbacks.AnchorExtension\n", ""
@@ -48,28 +48,6 @@ def test_callbacks_are_named_by_class_and_instance_not_position():
     swapped = {"trainer": {"callbacks": config["trainer"]["callbacks"][::-1]}}
     assert run_fingerprint(config) == run_fingerprint(swapped)
     assert run_fingerprint(config)["trainer.callbacks[SubspacePruning].init_args.eps_low"] == 0.2
-
-
-def test_a_fingerprint_keyed_by_position_reads_as_the_class_keyed_one():
-    old = {  # as progress.json of an earlier hispo-pl holds it
-        "trainer.callbacks[0].class_path": "hispo_pl.callbacks.AnchorExtension",
-        "trainer.callbacks[1].class_path": "hispo_pl.callbacks.SubspacePruning",
-        "trainer.callbacks[1].init_args.eps_low": None,
-        "trainer.callbacks[2].class_path": "hispo_pl.callbacks.RolloutEvaluation",
-        "trainer.callbacks[2].init_args.episodes": 2,
-        "trainer.max_steps": 5,
-        "model.init_args.lr": 0.001,
-    }
-    assert stored_fingerprint(old) == {
-        "trainer.callbacks[AnchorExtension].class_path": "hispo_pl.callbacks.AnchorExtension",
-        "trainer.callbacks[SubspacePruning].class_path": "hispo_pl.callbacks.SubspacePruning",
-        "trainer.callbacks[SubspacePruning].init_args.eps_low": None,
-        "trainer.callbacks[RolloutEvaluation].class_path": "hispo_pl.callbacks.RolloutEvaluation",
-        "trainer.callbacks[RolloutEvaluation].init_args.episodes": 2,
-        "trainer.max_steps": 5,
-        "model.init_args.optim.lr": 0.001,
-    }
-    assert upgrade_callback_keys(stored_fingerprint(old)) == stored_fingerprint(old)
 
 
 @pytest.fixture(scope="module")
@@ -105,7 +83,12 @@ def test_reordered_callbacks_resume_and_a_changed_argument_is_refused(hispo_run,
     assert "trainer.callbacks[DirichletEvaluation].init_args.n_candidates: 8 -> 4" in err
 
 
-def test_a_run_with_the_earlier_positional_fingerprint_resumes(hispo_run, capsys):
+def test_an_earlier_progress_file_is_refused_until_migrated(hispo_run, capsys):
+    """progress.json as an earlier hispo-pl wrote it (no format number, callbacks keyed by list
+    position) stops the rerun with one line naming the file and the migration; migrated, the
+    run resumes."""
+    from lab.migrate import migrate
+
     save, args, results = hispo_run
     progress_file = stream_dir(save) / "progress.json"
     progress = json.loads(progress_file.read_text())
@@ -119,25 +102,18 @@ def test_a_run_with_the_earlier_positional_fingerprint_resumes(hispo_run, capsys
             key = key.replace(f"trainer.callbacks[{label}].", f"trainer.callbacks[{i}].")
         positional[key] = value
     assert positional != progress["fingerprint"] and len(labels) == 4
-    progress_file.write_text(json.dumps({**progress, "fingerprint": positional}))
+    earlier = {k: v for k, v in progress.items() if k != "format"} | {"fingerprint": positional}
+    progress_file.write_text(json.dumps(earlier, indent=1))
+    capsys.readouterr()
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert "progress.json has no format number" in err and "python -m lab migrate" in err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert migrate(stream_dir(save)) == 0
+    assert json.loads(progress_file.read_text()) == progress
     capsys.readouterr()
     assert main(args) == 0
     assert "tasks 1..2 already trained" in capsys.readouterr().out
-
-
-def test_a_checkpoint_keyed_by_class_name_still_loads_the_callback_state(hispo_run):
-    """A task checkpoint of this run, with the callback entry under the bare class name as
-    checkpoints before ``state_key`` held it, restores the search's state."""
-    save, _, _ = hispo_run
-    checkpoint = torch.load(stream_dir(save) / "task_02.ckpt", weights_only=True)
-    search = DirichletEvaluation(n_candidates=8, n_batches=1, survivors=None)
-    saved = checkpoint["callbacks"].pop(search.state_key)
-    assert saved["l_window"]  # L_curr when the convergence window opened, per subspace
-    checkpoint["callbacks"]["DirichletEvaluation"] = saved
-    trainer = quiet_trainer(1, callbacks=[search])
-    call._call_callbacks_on_load_checkpoint(trainer, checkpoint)
-    call._call_callbacks_load_state_dict(trainer, checkpoint)
-    assert search._l_window == saved["l_window"]
 
 
 def test_the_task_checkpoint_keys_callbacks_by_class_and_arguments(hispo_run):

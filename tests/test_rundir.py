@@ -14,7 +14,14 @@ import pytest
 
 import hispo_pl
 from hispo_pl.errors import RunDirError
-from hispo_pl.results import LaunchRecord, LossDecision, Progress, StreamResults
+from hispo_pl.results import (
+    PROGRESS_KEYS,
+    LaunchRecord,
+    LossDecision,
+    Progress,
+    StreamResults,
+    TaskFitResult,
+)
 from hispo_pl.rundir import RunDir, task_label
 
 
@@ -84,43 +91,78 @@ def test_progress_results_and_records_round_trip(tmp_path):
     run.path.mkdir()
     progress = Progress(stream=["a"], fingerprint={"seed": 0})
     run.write_progress(progress)
-    assert run.read_progress() == progress and "mem_per_task" not in run.progress_file.read_text()
+    assert run.read_progress() == progress
+    assert json.loads(run.progress_file.read_text())["mem_per_task"] is None  # none measured
     progress.finish_task([1.0], 2.0, {"training": 2.0}, None, 1.5)
     run.write_progress(progress)
     assert run.read_progress() == progress and run.stream_task(0) == "a"
-    assert list(json.loads(run.progress_file.read_text())) == [
-        "stream",
-        "rows",
-        "wall_time_s",
-        "phase_time_s",
-        "datasets",
-        "fingerprint",
-        "mem_per_task",
-    ]
+    assert list(json.loads(run.progress_file.read_text())) == ["format", *PROGRESS_KEYS]
     run.write_results(StreamResults(stream=["a"], R=[[1.0]]))
     run.write_run_record(LaunchRecord(method="hispo"))
     assert run.has_results() and run.stream_results().R == [[1.0]]
     assert run.read_run_record() == LaunchRecord(method="hispo")
-    run.result_file.write_text(json.dumps({"method": "HBC", "task": "a", "success": 1.0}))
-    with pytest.raises(RunDirError, match="result.json has no episodes, seconds, episode_length"):
+    run.result_file.write_text(json.dumps({"format": 1, "method": "HBC", "task": "a"}))
+    with pytest.raises(RunDirError, match="result.json has no dataset, dataset_episodes, episodes"):
         run.read_result()
 
 
-def test_progress_of_an_older_run_gets_none_for_what_it_did_not_record():
-    """A progress file from before phase times and datasets: None for each finished task, and
-    MEM per task padded with None before the first task that measured it."""
-    progress = Progress.from_json({"stream": ["a", "b"], "rows": [[1.0, 0.0]], "wall_time_s": [1]})
-    assert progress.phase_time_s == [None] and progress.datasets == [None]
-    progress.finish_task([1.0, 1.0], 1.0, {"training": 1.0}, None, 2.0)
-    assert progress.mem_per_task == [None, 2.0] and progress.done == 2
+def _each_file(run: RunDir) -> list[Path]:
+    """A current file of each JSON kind in ``run``, written by :class:`RunDir`."""
+    progress = Progress(stream=["a"], fingerprint={"seed": 0})
+    progress.finish_task([0.5], 2.25, {"training": 2.0}, {"id": "d", "episodes": 3}, None)
+    run.write_progress(progress)
+    run.write_results(StreamResults(stream=["a"], R=[[0.5]], wall_time_s=[2.25], table="| 50 |"))
+    run.write_run_record(LaunchRecord.from_json({"derived_from": "x/seed0", "method": "ft1"}))
+    fit = dict(method="HBC", task="a", episodes=2, seconds=1.5, success=0.5, episode_length=9.0)
+    run.write_result(TaskFitResult(**fit, flip_rate=0.0, step=10.0, curve=[]))
+    return [run.progress_file, run.results_file, run.run_record_file, run.result_file]
 
 
-def test_committed_results_from_before_the_dataset_record_still_read():
-    """results.json files written before runs recorded their datasets read and tabulate."""
-    from hispo_pl.benchmark.finished_runs import load_records
+def test_a_current_file_of_each_kind_round_trips_byte_for_byte(tmp_path):
+    run, copy = RunDir(tmp_path / "a"), RunDir(tmp_path / "b")
+    run.path.mkdir(), copy.path.mkdir()
+    written = _each_file(run)
+    assert all(json.loads(p.read_text())["format"] == 1 for p in written)
+    launch = json.loads(run.run_record_file.read_text())
+    assert list(launch) == ["format", "derived_from", "method"]  # the number first, any order
+    copy.write_progress(run.read_progress())
+    copy.write_results(run.stream_results())
+    copy.write_run_record(run.read_run_record())
+    copy.write_result(run.read_result())
+    for path in written:
+        assert (copy.path / path.name).read_bytes() == path.read_bytes(), path.name
 
-    root = Path(__file__).resolve().parents[1] / "docs" / "results" / "pointmaze-1"
-    old = RunDir(root / "ftn" / "seed0").stream_results()
-    assert old.datasets is None and "datasets" not in old.to_json() and len(old.R) == 4
-    records, unreadable = load_records(root)
-    assert unreadable == [] and {r.method for r in records} >= {"ftn", "hispo"}
+
+@pytest.mark.parametrize("number", [None, 2, "1"])
+def test_a_file_of_another_format_is_refused_in_one_line(tmp_path, number):
+    run = RunDir(tmp_path)
+    readers = {
+        run.progress_file: run.read_progress,
+        run.results_file: run.stream_results,
+        run.run_record_file: run.read_run_record,
+        run.result_file: run.read_result,
+    }
+    for path in _each_file(run):
+        record = json.loads(path.read_text())
+        if number is None:
+            del record["format"]
+        else:
+            record["format"] = number
+        path.write_text(json.dumps(record))
+        with pytest.raises(RunDirError) as err:
+            readers[path]()
+        message = str(err.value)
+        assert "\n" not in message and message.startswith(str(path)), message
+        assert f"python -m lab migrate {tmp_path}" in message
+        found = "has no format number" if number is None else f"is of format {json.dumps(number)}"
+        assert found in message
+
+
+def test_a_results_file_without_a_key_of_its_format_is_refused(tmp_path):
+    run = RunDir(tmp_path)
+    _each_file(run)
+    record = json.loads(run.results_file.read_text())
+    del record["datasets"]
+    run.results_file.write_text(json.dumps(record))
+    with pytest.raises(RunDirError, match="results.json has no datasets; it should hold"):
+        run.stream_results()

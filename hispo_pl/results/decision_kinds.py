@@ -78,7 +78,7 @@ class Decision:
     @classmethod
     def from_json(cls, record: dict) -> Decision:
         """The record as the kind that reads it (:data:`DECISION_KINDS`, first match); keys
-        it lacks take their defaults (a record of an older hispo-pl).
+        it lacks take their defaults (None: not measured), as a record built in code may.
 
         Raises:
             ValueError: no kind reads the record, or it has no task, subspace or decision."""

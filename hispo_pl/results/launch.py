@@ -14,10 +14,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from .json_fields import split_known
+from .json_fields import FORMAT_KEY, split_known
 
 LAUNCH_KEYS = ("method", "seed", "stream", "steps_per_task", "argv", "command")
 """What every launch records, null where it does not know (no stream name, no budget)."""
+
+LAUNCH_FORMAT = 1
+"""The format number of ``run.json`` (:data:`~hispo_pl.results.json_fields.FORMAT_KEY`), its
+first key whatever order the others have."""
 
 
 @dataclass(kw_only=True)
@@ -97,4 +101,4 @@ class LaunchRecord:
         known, extra = split_known(cls, {k: v for k, v in record.items() if k != "order"})
         if "order" in record:
             extra["order"] = record["order"]
-        return cls(**known, extra=extra, order=tuple(record))
+        return cls(**known, extra=extra, order=tuple(k for k in record if k != FORMAT_KEY))

@@ -2,21 +2,26 @@
 
 from __future__ import annotations
 
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 
-from .json_fields import split_known
+from .json_fields import json_fields, missing_keys, split_known
 
 EVALUATION = ("success", "episode_length", "flip_rate", "step")
 """What a rollout evaluation measures, in the file's order."""
 
 
+RESULT_FORMAT = 1
+"""The format number of ``result.json`` (:data:`~hispo_pl.results.json_fields.FORMAT_KEY`)."""
+
+
 @dataclass(kw_only=True)
 class TaskFitResult:
     """A single-task fit's final evaluation (``result.json``): the method's class and the task,
-    the dataset it trained on and its episodes (None: a file from before they were recorded),
-    the episodes and wall seconds of the evaluation, its success rate, mean episode length,
-    button flip rate and training step, and every evaluation before it (``curve``, each point
-    with the keys of :data:`EVALUATION`; None: a file from before curves were recorded)."""
+    the dataset it trained on and its episodes, the episodes and wall seconds of the
+    evaluation, its success rate, mean episode length, button flip rate and training step, and
+    every evaluation before it (``curve``, each point with the keys of :data:`EVALUATION`).
+    The file holds every field's key; ``dataset``, ``dataset_episodes`` and ``curve`` are null
+    where they were not recorded."""
 
     method: str
     task: str
@@ -37,9 +42,7 @@ class TaskFitResult:
         return {k: getattr(self, k) for k in EVALUATION}
 
     def to_json(self) -> dict:
-        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "extra"}
-        optional = ("dataset", "dataset_episodes", "curve")
-        return {k: v for k, v in out.items() if v is not None or k not in optional} | self.extra
+        return json_fields(self)
 
     @classmethod
     def from_json(cls, record: dict) -> TaskFitResult:
@@ -48,8 +51,11 @@ class TaskFitResult:
         Raises:
             KeyError: ``record`` lacks a key every result has (named in the message)."""
         known, extra = split_known(cls, record)
-        required = [f.name for f in fields(cls) if f.default is MISSING and f.name != "extra"]
-        missing = [k for k in required if k not in known]
+        missing = missing_keys(known, RESULT_KEYS)
         if missing:
             raise KeyError(f"no {', '.join(missing)}")
         return cls(**known, extra=extra)
+
+
+RESULT_KEYS = tuple(f.name for f in fields(TaskFitResult) if f.name != "extra")
+"""The keys every ``result.json`` holds, besides its format number."""

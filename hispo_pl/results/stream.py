@@ -12,14 +12,30 @@ import numpy as np
 from ..metrics import METRICS, mean_std
 from .json_fields import json_fields, split_known
 
+RESULTS_FORMAT = 1
+"""The format number of ``results.json`` (:data:`~hispo_pl.results.json_fields.FORMAT_KEY`)."""
+
+RESULTS_KEYS = (
+    "stream",
+    "R",
+    "wall_time_s",
+    "phase_time_s",
+    "datasets",
+    "stored_bytes",
+    "mem_per_task",
+    "table",
+)
+"""The keys every ``results.json`` holds (null where not measured), besides its format number;
+the metrics hold what the run measured, ``anchors`` and ``alphas`` a run with subspaces."""
+
 
 @dataclass(kw_only=True)
 class StreamResults:
     """A finished stream (``results.json``): its tasks, the success matrix ``R`` (fractions;
     None above the diagonal), wall and phase times per task, the datasets it read, the metrics
     of :data:`~hispo_pl.metrics.METRICS` it has, the stored bytes, MEM after each task, anchors
-    and anchor weights per subspace, and ``R`` as printed. ``None``: a file from before that
-    key existed."""
+    and anchor weights per subspace (methods with subspaces only), and ``R`` as printed. The
+    file holds every key of :data:`RESULTS_KEYS`, null where the value was not measured."""
 
     stream: list[str]
     R: list[list[float | None]]
@@ -49,17 +65,17 @@ class StreamResults:
         bytes and the metrics measured on the model (MEM)."""
         out: dict = {"stream": self.stream, "R": self.R}
         for name in ("wall_time_s", "phase_time_s", "datasets"):
-            if getattr(self, name) is not None:
-                out[name] = getattr(self, name)
+            out[name] = getattr(self, name)
         for of_model in (False, True):
-            if of_model and self.stored_bytes is not None:
+            if of_model:
                 out["stored_bytes"] = self.stored_bytes
             out |= {
                 m.name: self.metrics[m.name]
                 for m in METRICS
                 if m.of_model == of_model and m.name in self.metrics
             }
-        for name in ("mem_per_task", "anchors", "alphas"):
+        out["mem_per_task"] = self.mem_per_task
+        for name in ("anchors", "alphas"):  # a run with subspaces
             if getattr(self, name) is not None:
                 out[name] = getattr(self, name)
         return {**out, "table": self.table, **self.extra}
@@ -96,12 +112,27 @@ def fwt_reference(scratch: StreamResults | None, n_tasks: int) -> list[float] | 
     return scratch.diagonal()
 
 
+PROGRESS_FORMAT = 1
+"""The format number of ``progress.json`` (:data:`~hispo_pl.results.json_fields.FORMAT_KEY`)."""
+
+PROGRESS_KEYS = (
+    "stream",
+    "rows",
+    "wall_time_s",
+    "phase_time_s",
+    "datasets",
+    "fingerprint",
+    "mem_per_task",
+)
+"""The keys every ``progress.json`` holds, besides its format number."""
+
+
 @dataclass(kw_only=True)
 class Progress:
     """A stream's tasks finished so far (``progress.json``), what a rerun resumes from: per
     finished task its row of R, wall and phase times, the dataset it read and MEM after it;
     and the run's settings (``fingerprint``, flat ``dotted.key: value``; None: not checked).
-    A file from before phase times, datasets or MEM per task has None for each of its tasks."""
+    The file holds every key of :data:`PROGRESS_KEYS` (null where there is no value)."""
 
     stream: list[str]
     rows: list[list[float]] = field(default_factory=list)
@@ -109,7 +140,7 @@ class Progress:
     phase_time_s: list[dict[str, float] | None] = field(default_factory=list)
     datasets: list[Any] = field(default_factory=list)
     fingerprint: dict | None = None
-    mem_per_task: list[float | None] | None = None  # absent until a task finished
+    mem_per_task: list[float | None] | None = None  # None until a task finished
     extra: dict = field(default_factory=dict)
 
     @property
@@ -134,15 +165,9 @@ class Progress:
         self.datasets.append(dataset)
 
     def to_json(self) -> dict:
-        out = json_fields(self)
-        for name in ("fingerprint", "mem_per_task"):
-            if out[name] is None:
-                del out[name]
-        return out
+        return json_fields(self)
 
     @classmethod
     def from_json(cls, record: dict) -> Progress:
         known, extra = split_known(cls, record)
-        for name in ("phase_time_s", "datasets"):  # a file from before they were recorded
-            known.setdefault(name, [None] * len(known.get("rows", [])))
         return cls(**known, extra=extra)
