@@ -28,7 +28,6 @@ from typing import Literal, Protocol, runtime_checkable
 import torch
 from torch import Tensor, nn
 
-from ..config import BackboneConfig, OptimConfig
 from ..nn.hierarchy import HierarchicalPolicy
 from .hbc import GoalConditionedBC
 
@@ -84,17 +83,8 @@ class NetworkPerTask(GoalConditionedBC):
         keep: ``all`` networks (one per task, each task acts with its own) or the ``last`` one.
     """
 
-    def __init__(
-        self,
-        obs_dim: int,
-        action_dim: int,
-        goal_dim: int = 2,
-        backbone: BackboneConfig = BackboneConfig(),
-        optim: OptimConfig = OptimConfig(),
-        init: Init = "fresh",
-        keep: Keep = "all",
-    ):
-        super().__init__(obs_dim, action_dim, goal_dim, backbone, optim)
+    def __init__(self, *args, init: Init = "fresh", keep: Keep = "all", **kwargs):
+        super().__init__(*args, **kwargs)
         if init not in ("fresh", "previous"):
             raise ValueError(f"init must be 'fresh' or 'previous', got {init!r}")
         if keep not in ("all", "last"):

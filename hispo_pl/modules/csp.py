@@ -19,7 +19,6 @@ from typing import ClassVar, Literal
 import torch
 from torch import Tensor, nn
 
-from ..config import BackboneConfig, OptimConfig
 from ..nn import eval_mode
 from ..nn.hierarchy import high_input, high_input_dim
 from ..nn.simplex import sample_dirichlet
@@ -76,35 +75,17 @@ class CSP(CSPO):
 
     def __init__(
         self,
-        obs_dim: int,
-        action_dim: int,
-        goal_dim: int = 2,
-        backbone: BackboneConfig = BackboneConfig(),
-        optim: OptimConfig = OptimConfig(),
+        *args,
         anchor_init: AnchorInit = "mean",
-        cosine_weight: float = 0.0,
-        alpha_noise: float = 0.1,
-        alpha_groups: int = 1,
-        new_anchor_score: float = 0.0,
         alpha_sampling: AlphaSampling = "dirichlet",
         critic: dict[str, int | float] | None = None,
+        **kwargs,
     ):
         if alpha_sampling not in ("dirichlet", "scores"):
             raise ValueError(
                 f"CSP: alpha_sampling must be 'dirichlet' or 'scores', got {alpha_sampling!r}"
             )
-        super().__init__(
-            obs_dim,
-            action_dim,
-            goal_dim,
-            backbone,
-            optim,
-            anchor_init=anchor_init,
-            cosine_weight=cosine_weight,
-            alpha_noise=alpha_noise,
-            alpha_groups=alpha_groups,
-            new_anchor_score=new_anchor_score,
-        )
+        super().__init__(*args, anchor_init=anchor_init, **kwargs)
         self.critic_config = CriticConfig.from_dict(critic)
         self.critic = self._new_critic(self.n_anchors(POLICY))
 

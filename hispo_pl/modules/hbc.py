@@ -36,6 +36,16 @@ class GoalConditionedBC(CapturedSteps, L.LightningModule):
     :class:`~hispo_pl.modules.columns.GrowingPolicy` for the
     :class:`~hispo_pl.callbacks.TaskNetworks` callback, or subclasses
     :class:`~hispo_pl.modules.columns.NetworkPerTask`, which does (docs/extending.md).
+
+    A subclass declares only its own arguments, keyword-only, and forwards the rest:
+    ``def __init__(self, *args, own=..., **kwargs): super().__init__(*args, **kwargs)``;
+    LightningCLI lists and parses the forwarded ones as the subclass's (jsonargparse reads
+    the call), and :meth:`save_hyperparameters` stores them with its own.
+
+    Args:
+        obs_dim, action_dim, goal_dim: sizes (linked from the data by the CLI).
+        backbone: the network (:class:`~hispo_pl.config.BackboneConfig`).
+        optim: Adam's learning rate and schedule (:class:`~hispo_pl.config.OptimConfig`).
     """
 
     def __init__(
@@ -69,13 +79,30 @@ class GoalConditionedBC(CapturedSteps, L.LightningModule):
         return self.optim_config.lr
 
     def save_hyperparameters(self, *args, frame=None, **kwargs) -> None:
-        """Lightning's, with the configs stored as plain dicts (``weights_only=True`` loads)."""
+        """Lightning's, with the configs stored as plain dicts (``weights_only=True`` loads).
+
+        Called bare, it stores this base's five arguments first, as the base took them: a
+        subclass forwards them through ``*args, **kwargs``, where Lightning sees only those
+        given by name (not the positional ones, nor the defaults)."""
         super().save_hyperparameters(*args, frame=frame or inspect.currentframe().f_back, **kwargs)
-        configs = {"backbone": self.backbone_config, "optim": self.optim_config}
+        base = {
+            "obs_dim": self.obs_dim,
+            "action_dim": self.action_dim,
+            "goal_dim": self.goal_dim,
+            "backbone": plain(self.backbone_config),
+            "optim": plain(self.optim_config),
+        }
         for hparams in (self._hparams, self._hparams_initial):
-            for key, config in configs.items():
-                if key in hparams:
-                    hparams[key] = plain(config)
+            if args:  # only the names given: the configs among them as plain dicts
+                hparams.update({k: base[k] for k in ("backbone", "optim") if k in hparams})
+                continue
+            items = list(hparams.items())
+            hparams.clear()
+            # LightningCLI's private entries that lead (``_class_path``) stay first
+            while items and items[0][0][:1] == "_":
+                hparams.update([items.pop(0)])
+            hparams.update(base)
+            hparams.update((k, v) for k, v in items if k not in base)
 
     def on_fit_start(self) -> None:
         """A fresh :class:`~hispo_pl.task_record.TaskRecord` for the task about to train."""
@@ -274,23 +301,11 @@ class GoalConditionedBC(CapturedSteps, L.LightningModule):
 
 
 class HBC(GoalConditionedBC):
-    """Goal-conditioned BC on one task: one backbone network (hierarchical by default).
+    """Goal-conditioned BC on one task: one backbone network (hierarchical by default), of
+    :class:`GoalConditionedBC`'s arguments."""
 
-    Args:
-        obs_dim, action_dim, goal_dim: sizes (linked from the data by the CLI).
-        backbone: the network (:class:`~hispo_pl.config.BackboneConfig`).
-        optim: Adam's learning rate and schedule (:class:`~hispo_pl.config.OptimConfig`).
-    """
-
-    def __init__(
-        self,
-        obs_dim: int,
-        action_dim: int,
-        goal_dim: int = 2,
-        backbone: BackboneConfig = BackboneConfig(),
-        optim: OptimConfig = OptimConfig(),
-    ):
-        super().__init__(obs_dim, action_dim, goal_dim, backbone, optim)
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
         self.save_hyperparameters()
         self.net = self.make_policy()
 
@@ -304,15 +319,8 @@ class HBC(GoalConditionedBC):
 class BC(HBC):
     """Flat goal-conditioned BC (the paper's BC column): :class:`HBC` on the flat backbone."""
 
-    def __init__(
-        self,
-        obs_dim: int,
-        action_dim: int,
-        goal_dim: int = 2,
-        backbone: BackboneConfig = BackboneConfig(kind="bc"),
-        optim: OptimConfig = OptimConfig(),
-    ):
-        super().__init__(obs_dim, action_dim, goal_dim, backbone, optim)
+    def __init__(self, *args, backbone: BackboneConfig = BackboneConfig(kind="bc"), **kwargs):
+        super().__init__(*args, backbone=backbone, **kwargs)
 
 
 def imported_method(class_path: str) -> type[GoalConditionedBC] | None:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from typing import Literal
 
-from ..config import BackboneConfig, OptimConfig
 from ..nn.lowrank import low_rank_
 from .hispo import HiSPO
 
@@ -51,17 +50,10 @@ class HiLOW(HiSPO):
 
     def __init__(
         self,
-        obs_dim: int,
-        action_dim: int,
-        goal_dim: int = 2,
-        backbone: BackboneConfig = BackboneConfig(),
-        optim: OptimConfig = OptimConfig(),
+        *args,
         rank: int = 8,
         anchor_init: Literal["first", "random"] = "first",
-        cosine_weight: float = 0.0,
-        alpha_noise: float = 0.1,
-        alpha_groups: int = 1,
-        new_anchor_score: float = 0.0,
+        **kwargs,
     ):
         if rank < 1:
             raise ValueError(f"HiLOW: rank must be >= 1, got {rank}")
@@ -71,17 +63,6 @@ class HiLOW(HiSPO):
                 "low-rank anchor starts at the first anchor (A B = 0); the mean of the earlier "
                 "offsets is not rank r"
             )
-        super().__init__(
-            obs_dim,
-            action_dim,
-            goal_dim,
-            backbone,
-            optim,
-            anchor_init=anchor_init,
-            cosine_weight=cosine_weight,
-            alpha_noise=alpha_noise,
-            alpha_groups=alpha_groups,
-            new_anchor_score=new_anchor_score,
-        )
+        super().__init__(*args, anchor_init=anchor_init, **kwargs)
         for policy in self.policies.heads().values():  # θ_1 as HiSPO draws it, then low-rank
             low_rank_(policy.net, rank)

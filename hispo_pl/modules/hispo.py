@@ -16,7 +16,6 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..config import BackboneConfig, OptimConfig
 from ..nn import eval_mode
 from ..nn.hierarchy import Forward, HierarchicalPolicy
 from ..nn.mlp import GaussianPolicy
@@ -78,18 +77,15 @@ class HiSPO(GoalConditionedBC):
 
     def __init__(
         self,
-        obs_dim: int,
-        action_dim: int,
-        goal_dim: int = 2,
-        backbone: BackboneConfig = BackboneConfig(),
-        optim: OptimConfig = OptimConfig(),
+        *args,
         anchor_init: AnchorInit | None = None,
         cosine_weight: float = 0.0,
         alpha_noise: float = 0.1,
         alpha_groups: int = 1,
         new_anchor_score: float = 0.0,
+        **kwargs,
     ):
-        super().__init__(obs_dim, action_dim, goal_dim, backbone, optim)
+        super().__init__(*args, **kwargs)
         if self.backbone_config.kind != "hbc":
             raise ValueError(f"{type(self).__name__} needs the hierarchical backbone (kind: hbc)")
         self.save_hyperparameters()

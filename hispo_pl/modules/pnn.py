@@ -18,7 +18,6 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ..config import BackboneConfig, OptimConfig
 from ..nn.hierarchy import Forward, HierarchicalPolicy
 from ..nn.progressive import ProgressivePolicy
 from .columns import record_task
@@ -36,6 +35,7 @@ class PNN(GoalConditionedBC):
         optim: Adam over the newest column and its laterals, restarted at every task.
 
     Example:
+        >>> from hispo_pl.config import BackboneConfig
         >>> m = PNN(4, 2, backbone=BackboneConfig(high_hidden=8, low_hidden=16))
         >>> for k in range(3):
         ...     m.start_task(k)
@@ -44,15 +44,8 @@ class PNN(GoalConditionedBC):
         (3, [0, 1, 2])
     """
 
-    def __init__(
-        self,
-        obs_dim: int,
-        action_dim: int,
-        goal_dim: int = 2,
-        backbone: BackboneConfig = BackboneConfig(),
-        optim: OptimConfig = OptimConfig(),
-    ):
-        super().__init__(obs_dim, action_dim, goal_dim, backbone, optim)
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
         self.save_hyperparameters()
         self.net = self.make_policy(ProgressivePolicy)
         # column each finished task acts with (one entry per finished task)

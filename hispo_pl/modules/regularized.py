@@ -17,7 +17,6 @@ import torch
 from torch import Tensor, nn
 from torch.func import functional_call, grad, vmap
 
-from ..config import BackboneConfig, OptimConfig
 from .columns import NetworkPerTask
 
 Penalty = Literal["l2", "ewc"]
@@ -112,19 +111,10 @@ class RegularizedFineTuning(NetworkPerTask):
     The statistics are buffers: stored, counted in MEM and restored by a checkpoint.
     """
 
-    def __init__(
-        self,
-        obs_dim: int,
-        action_dim: int,
-        goal_dim: int = 2,
-        backbone: BackboneConfig = BackboneConfig(),
-        optim: OptimConfig = OptimConfig(),
-        penalty: Penalty = "ewc",
-        penalty_lambda: float = 1.0,
-    ):
+    def __init__(self, *args, penalty: Penalty = "ewc", penalty_lambda: float = 1.0, **kwargs):
         if penalty not in ("l2", "ewc"):
             raise ValueError(f"penalty must be 'l2' or 'ewc', got {penalty!r}")
-        super().__init__(obs_dim, action_dim, goal_dim, backbone, optim, "previous", "last")
+        super().__init__(*args, init="previous", keep="last", **kwargs)
         self.save_hyperparameters()
         self.remove_ignored_hparams(["init", "keep"])  # fixed here, not arguments
         self.register_buffer("penalty_importance", torch.zeros(0))  # A: [] before task 1 ends
