@@ -2,15 +2,14 @@
 
 A method takes them as ``backbone`` and ``optim`` (``--model.init_args.backbone.low_hidden 128``,
 ``--model.init_args.optim.lr 1e-3``) and stores them in its hyperparameters as plain dicts, so
-a checkpoint still loads with ``weights_only=True``. Checkpoints written before these configs
-existed kept every field flat; :func:`upgrade_hparams` reads them. No torch here: reports and
-scripts import it freely.
+a checkpoint still loads with ``weights_only=True``. No torch here: reports and scripts
+import it freely.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Literal
 
 BackboneKind = Literal["hbc", "bc"]
@@ -109,42 +108,3 @@ def _coerce(cls, value):
 def plain(config: BackboneConfig | OptimConfig) -> dict:
     """A config as the plain dict a checkpoint's hyperparameters hold."""
     return asdict(config)
-
-
-_BACKBONE_FIELDS = tuple(f.name for f in fields(BackboneConfig) if f.name != "kind")
-# flat hyperparameter -> (config, field), as checkpoints had them
-_LEGACY = {
-    **{name: ("backbone", name) for name in _BACKBONE_FIELDS},
-    "hidden": ("backbone", "low_hidden"),  # flat BC's one width
-    "lr": ("optim", "lr"),
-    "lr_schedule": ("optim", "schedule"),
-}
-
-
-def upgrade_hparams(hparams: Mapping) -> dict:
-    """A method's hyperparameters as this version takes them, from a checkpoint of any version:
-    flat fields (``low_hidden``, ``lr``, a ``backbone: bc`` string, flat BC's ``hidden``)
-    move into the ``backbone`` and ``optim`` dicts; current ones pass unchanged.
-
-    Example:
-        >>> upgrade_hparams({"obs_dim": 4, "hidden": 32, "lr": 0.1})
-        {'obs_dim': 4, 'backbone': {'kind': 'bc', 'low_hidden': 32}, 'optim': {'lr': 0.1}}
-    """
-    out: dict = {}
-    nested: dict[str, dict] = {"backbone": {}, "optim": {}}
-    for key, value in hparams.items():
-        if key in _LEGACY:
-            group, name = _LEGACY[key]
-            nested[group][name] = value
-            if key == "hidden":
-                nested["backbone"]["kind"] = "bc"
-        elif key == "backbone" and isinstance(value, str):
-            nested["backbone"]["kind"] = value
-        elif key in nested and isinstance(value, Mapping):
-            nested[key].update(value)
-        else:
-            out[key] = value
-    for group, values in nested.items():
-        if values:
-            out[group] = dict(sorted(values.items(), key=lambda kv: kv[0] != "kind"))
-    return out

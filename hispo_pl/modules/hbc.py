@@ -10,7 +10,7 @@ import lightning as L
 import torch
 from torch import Tensor, nn
 
-from ..config import BackboneConfig, OptimConfig, plain, upgrade_hparams
+from ..config import BackboneConfig, OptimConfig, plain
 from ..errors import CheckpointError, ConfigError, TrainingDivergedError
 from ..nn import fast
 from ..nn.hierarchy import Forward, HierarchicalPolicy
@@ -132,12 +132,7 @@ class GoalConditionedBC(CapturedSteps, L.LightningModule):
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         self.task_index = int(checkpoint.get("hispo_pl_task_index", 0))
-        self.upgrade_state_dict(checkpoint["state_dict"])
         self.restore_structure(checkpoint["state_dict"])
-
-    def upgrade_state_dict(self, state_dict: dict[str, Tensor]) -> None:
-        """Rename, in place, the entries of a checkpoint written by an earlier version whose
-        layout differs; the current layout has nothing to do."""
 
     def restore_structure(self, state_dict: dict[str, Tensor]) -> None:
         """Grow the module to a state dict's shape (networks, anchors, columns, per-task
@@ -187,7 +182,6 @@ class GoalConditionedBC(CapturedSteps, L.LightningModule):
         try:
             # LightningCLI adds private entries such as ``_class_path`` to the hyperparameters
             hparams = {k: v for k, v in checkpoint["hyper_parameters"].items() if k[:1] != "_"}
-            hparams = upgrade_hparams(hparams)
             check_shapes_on_meta(method, hparams, checkpoint, path)
             module = method(**hparams)
             module.load_checkpoint(checkpoint)

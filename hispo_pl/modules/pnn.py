@@ -109,11 +109,6 @@ class PNN(GoalConditionedBC):
 
     # --- checkpoints ----------------------------------------------------------------------
 
-    def upgrade_state_dict(self, state_dict: dict[str, Tensor]) -> None:
-        """Checkpoints of earlier versions held the heads at the top (``high.``, ``policy.``)."""
-        for key in [k for k in state_dict if k.split(".")[0] in ("high", "low", "policy")]:
-            state_dict[f"net.{key}"] = state_dict.pop(key)
-
     def restore_structure(self, state_dict: dict[str, Tensor]) -> None:
         """As many columns and mapped tasks as the state dict holds, before it loads."""
         prefix = f"net.{self.net.names[0]}.net.columns."
