@@ -13,7 +13,7 @@ import torch
 from helpers import quiet_trainer, tiny_hispo
 from lightning.pytorch.loggers import Logger
 
-import hispo_pl.callbacks.subspace as subspace_callbacks
+import hispo_pl.callbacks.anchors as subspace_callbacks
 from hispo_pl.callbacks import (
     AnchorExtension,
     DirichletEvaluation,

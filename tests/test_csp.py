@@ -10,8 +10,8 @@ import torch
 from helpers import fit_tiny_stream
 
 from hispo_pl.callbacks import CriticEvaluation, CriticPruning
+from hispo_pl.callbacks.anchors import check_task_end_order
 from hispo_pl.callbacks.protocols import CriticScoredSubspaces
-from hispo_pl.callbacks.subspace import check_task_end_order
 from hispo_pl.config import BackboneConfig
 from hispo_pl.decisions import critic_extends
 from hispo_pl.iql import expectile_loss, goal_reward, polyak_update, td_loss, td_target

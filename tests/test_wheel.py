@@ -82,7 +82,7 @@ def test_the_wheel_carries_its_licence_links_and_configs(wheel_venv):
     assert "Project-URL: Paper, https://" in text
     shipped = {n.split("hispo_pl/configs/", 1)[1] for n in names if "hispo_pl/configs/" in n}
     assert {"streams/pointmaze-1.yaml", "methods/hispo.yaml", "grids/paper.yaml"} <= shipped
-    assert "hispo_pl/callbacks/subspace.py" in names
+    assert "hispo_pl/callbacks/anchors.py" in names
     assert "hispo_pl/notebooks/anchor_weights.ipynb" in names  # python -m hispo_pl.notebook
     assert not [n for n in names if n.endswith((".c", ".so"))]  # nothing to compile or load
 

@@ -1,10 +1,10 @@
 """Callbacks that carry out the method (shipped as ``hispo_pl.callbacks``)."""
 
+from .anchors import AnchorExtension, SubspacePruning
 from .critic_pruning import CriticEvaluation, CriticPruning
 from .loss_search import DirichletEvaluation
 from .networks import TaskNetworks, WeightConsolidation
 from .rollout import RolloutEvaluation
-from .subspace import AnchorExtension, SubspacePruning
 from .transfer import ZeroShotTransfer
 
 __all__ = [

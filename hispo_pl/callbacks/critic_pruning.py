@@ -23,9 +23,9 @@ from ..nn import eval_mode
 from ..race import RaceOutcome, race_candidates, race_subspace
 from ..results import CriticDecision, CriticSearchResult
 from ..rundir import task_label
+from .anchors import apply_decision, check_task_end_order, decide_subspaces
 from .protocols import CriticScoredSubspaces, PrunableSubspaces, require, require_subspaces
 from .state import KeyedState
-from .subspace import apply_decision, check_task_end_order, decide_subspaces
 
 
 def _require_critic(pl_module: L.LightningModule, who: str) -> CriticScoredSubspaces:

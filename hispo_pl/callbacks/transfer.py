@@ -16,9 +16,9 @@ from ..nn import eval_mode
 from ..nn.simplex import sample_dirichlet
 from ..race import race_subspace, resolve_precision
 from ..results import ZeroShotDecision
+from .anchors import AnchorExtension, log_decisions
 from .protocols import TransferableSubspaces, require_subspaces
 from .state import KeyedState
-from .subspace import AnchorExtension, log_decisions
 
 
 class ZeroShotTransfer(KeyedState):

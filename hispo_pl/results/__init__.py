@@ -27,7 +27,7 @@ from .decision_kinds import (
     rule_metrics,
 )
 from .json_fields import FORMAT_KEY
-from .launch import LAUNCH_FORMAT, LAUNCH_KEYS, LaunchRecord
+from .launch_record import LAUNCH_FORMAT, LAUNCH_KEYS, LaunchRecord
 from .single_task import RESULT_FORMAT, RESULT_KEYS, TaskFitResult
 from .stream import (
     PROGRESS_FORMAT,
