@@ -15,6 +15,8 @@ import torch
 from hispo_pl.callbacks import protocols
 from hispo_pl.config import BackboneConfig
 from hispo_pl.modules.hispo import HiSPO
+from hispo_pl.results import LaunchRecord, StreamResults
+from hispo_pl.rundir import RunDir
 
 TIMES = ("wall_time_s", "phase_time_s")  # what two runs of the same work may differ in
 
@@ -93,6 +95,23 @@ def tiny_stream_args(
         "false",
         *extra,
     ]
+
+
+def write_run_files(
+    run_dir: Path, results: dict | None = None, launch: dict | None = None
+) -> RunDir:
+    """A run directory with the ``results.json`` and ``run.json`` given, written as hispo-pl
+    writes them (through :class:`RunDir`: the format number first, every key of the record,
+    null where a test gives none): ``results`` holds the keys of a
+    :class:`~hispo_pl.results.StreamResults`, ``launch`` those of a
+    :class:`~hispo_pl.results.LaunchRecord` in the file's order; either may be left out."""
+    run = RunDir(run_dir)
+    run.path.mkdir(parents=True, exist_ok=True)
+    if results is not None:
+        run.write_results(StreamResults.from_json(results))
+    if launch is not None:
+        run.write_run_record(LaunchRecord.from_json(launch))
+    return run
 
 
 def fit_tiny_stream(

@@ -246,7 +246,7 @@ def test_write_report_from_disk_and_report_only(tmp_path, capsys):
     for r in _records():
         run_dir = tmp_path / "runs" / r.method / f"seed{r.seed}"
         run_dir.mkdir(parents=True)
-        (run_dir / "results.json").write_text(json.dumps(r.results.to_json()))
+        RunDir(run_dir).write_results(r.results)
         if r.meta.to_json():
             RunDir(run_dir).write_run_record(r.meta)
     (tmp_path / "runs/hispo/seed7").mkdir()  # unfinished: no results.json, ignored
@@ -298,7 +298,7 @@ def test_export_copies_small_files_and_the_report_rebuilds_with_decisions(tmp_pa
     for r in _records():
         run_dir = tmp_path / "runs" / r.method / f"seed{r.seed}"
         run_dir.mkdir(parents=True)
-        (run_dir / "results.json").write_text(json.dumps(r.results.to_json()))
+        RunDir(run_dir).write_results(r.results)
         (run_dir / "task_01.ckpt").write_bytes(b"weights")  # never exported
         (run_dir / "config.yaml").write_text("seed_everything: 0\n")
         if r.method == "hispo":

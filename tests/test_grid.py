@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from helpers import BENCH_TINY, BENCH_TINY_OVERRIDES, grid_config_dir
+from helpers import BENCH_TINY, BENCH_TINY_OVERRIDES, grid_config_dir, write_run_files
 
 from hispo_pl.benchmark import grid as gr
 from hispo_pl.benchmark import grid_plan
@@ -157,7 +157,7 @@ def _committed(
     run = cell.result_dir(root)
     run.mkdir(parents=True)
     R = [[0.5 if k <= i else None for k in range(len(tasks))] for i in range(len(tasks))]
-    (run / "results.json").write_text(json.dumps({"stream": tasks, "PER": 0.5, "R": R}))
+    write_run_files(run, {"stream": tasks, "PER": 0.5, "R": R})
     (run / "config.yaml").write_text(yaml.safe_dump(config or {}))
 
 
@@ -185,7 +185,7 @@ def test_committed_runs_of_an_older_stream_or_another_value_are_not_done(tmp_pat
     assert reader(right) == 0.5 and reader(wrong) is None
     (old.result_dir(tmp_path) / "results.json").write_text("{")  # cut short: run it again
     assert reader(old) is None
-    (ok.result_dir(tmp_path) / "run.json").write_text(json.dumps({"steps_per_task": 100}))
+    write_run_files(ok.result_dir(tmp_path), launch={"steps_per_task": 100})
     assert reader(ok) is None  # another budget than the stream config's
 
 

@@ -152,9 +152,10 @@ def test_memory_after_each_task_of_a_fixed_stream(committed_runs, tmp_path):
     shutil.copytree(committed_runs / STREAM, root / "tiny")
     old = root / "tiny/hispo/seed1"  # the same run as an older hispo-pl wrote it
     shutil.copytree(root / "tiny/hispo/seed0", old)
-    results = json.loads((old / "results.json").read_text())
-    del results["mem_per_task"]
-    (old / "results.json").write_text(json.dumps(results))
+    results = RunDir(old).stream_results()  # migrated: no MEM per task is an explicit null
+    assert results.mem_per_task is not None
+    results.mem_per_task = None
+    RunDir(old).write_results(results)
     grid = grid_from_dict({"streams": ["tiny"], "methods": ["hispo", "hilow", "scn"]}, "t")
     text = memory_per_task_markdown(grid, Committed(root))
     for method, seeds, measuring in (("hispo", 2, 1), ("hilow", 1, 1)):

@@ -4,13 +4,12 @@ run's ``run.json`` alone, and launches that record the checkout's commit."""
 
 from __future__ import annotations
 
-import json
 import re
 import shutil
 from pathlib import Path
 
 import pytest
-from helpers import ROOT
+from helpers import ROOT, write_run_files
 
 from hispo_pl.benchmark import grid as gr
 from hispo_pl.benchmark import grid_report as gp
@@ -93,8 +92,7 @@ def _finished_run(out: Path, method: str, seed: int) -> Path:
     run.mkdir(parents=True)
     tasks = ["pointmaze-umaze-N[500]", "pointmaze-large-N[500]"]
     R = [[0.9, None], [0.9, 0.9]]
-    (run / "results.json").write_text(json.dumps({"stream": tasks, "R": R, "MEM": 1.0}))
-    (run / "run.json").write_text(json.dumps({"method": method, "seed": seed}))
+    write_run_files(run, {"stream": tasks, "R": R, "MEM": 1.0}, {"method": method, "seed": seed})
     return run
 
 
@@ -141,12 +139,12 @@ def test_a_manifest_row_reads_the_runs_own_run_json(tmp_path):
     argv = ["-m", "hispo_pl.cli", "fit", "--config", "/work/x/configs/streams/pointmaze-1.yaml"]
     machine = {"platform": "Linux-6", "cpus": 2, "python": "3.11", "torch": "2.13.0+cpu"}
     record = {"commit": "89f9f6fab9ca098775c946e85840a779acbebc32+dirty", "machine": machine}
-    (made / "run.json").write_text(json.dumps({**record, "argv": argv}))
+    write_run_files(made, launch={**record, "argv": argv})
     older = tmp_path / "scn" / "seed0"
     older.mkdir(parents=True)
     (older / "results.json").write_text("{}")
     (older / "config.yaml").write_text("seed_everything: 0\n")
-    (older / "run.json").write_text(json.dumps({"committed_in": "abc1234"}))
+    write_run_files(older, launch={"committed_in": "abc1234"})
     bare = tmp_path / "sc1" / "seed0"
     bare.mkdir(parents=True)
     (bare / "results.json").write_text("{}")
@@ -173,7 +171,7 @@ def test_a_manifest_replaces_its_link_and_escapes_what_run_json_says(tmp_path):
     run = _finished_run(folder, "scn", 0)
     crafted = ["-m", "hispo_pl.cli", "fit", "x |\n| injected | row | here | `code` |\n"]
     record = {"argv": crafted, "commit": "abc|def", "machine": {"platform": "a\nb"}}
-    (run / "run.json").write_text(json.dumps(record))
+    write_run_files(run, launch=record)
     victim = tmp_path / "victim"
     victim.write_text("victim\n")
     (folder / MANIFEST).symlink_to(victim)

@@ -12,12 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from helpers import TINY_STREAM, error_lines, tiny_stream_args
+from helpers import TINY_STREAM, error_lines, tiny_stream_args, write_run_files
 from probes import SLOW_STEPS, TINY_HISPO, cli_source, spawn, stream_dir, wait_for
 
 from hispo_pl.cli import main
 from hispo_pl.config import BackboneConfig
 from hispo_pl.errors import TrainingDivergedError
+from hispo_pl.results import PROGRESS_KEYS, StreamResults
+from hispo_pl.rundir import RunDir, run_file_text
 
 # --- 1. data generate: a dataset cut short counts as missing --------------------------------
 
@@ -388,11 +390,8 @@ def _finished_run(out: Path, method: str, seed: int, tasks: list[str], R=None, m
     run.mkdir(parents=True)
     n = len(tasks)
     R = R if R is not None else [[0.9 if j <= i else None for j in range(n)] for i in range(n)]
-    (run / "results.json").write_text(json.dumps({"stream": tasks, "R": R, "MEM": 1.0}))
-    if meta:
-        (run / "run.json").write_text(
-            json.dumps({"method": method, "seed": seed, "stream": "pointmaze-1"})
-        )
+    launch = {"method": method, "seed": seed, "stream": "pointmaze-1"} if meta else None
+    write_run_files(run, {"stream": tasks, "R": R, "MEM": 1.0}, launch)
     return run
 
 
@@ -420,7 +419,7 @@ def test_an_export_over_another_streams_runs_is_refused_before_anything_is_writt
     assert main(["benchmark", "--report-only", "--out", str(first), "--export", str(dest)]) == 0
     second = tmp_path / "pm2"
     run = _finished_run(second, "scn", 0, PM1_TASKS[:3])
-    (run / "run.json").write_text(json.dumps({"method": "scn", "seed": 0, "stream": "pm2"}))
+    write_run_files(run, launch={"method": "scn", "seed": 0, "stream": "pm2"})
     (second / "benchmark.json").write_text(json.dumps({"stream": "pm2"}))
     capsys.readouterr()
     before = {p: p.read_bytes() for p in dest.rglob("*") if p.is_file()}
@@ -460,12 +459,18 @@ def test_a_report_over_two_streams_is_refused(tmp_path, capsys):
 @pytest.mark.parametrize(
     "text, said",
     [
-        ("{}", "has no list stream, rows"),
+        ('{"format": 1}', "has no stream, rows"),
         ("[]", "JSON list, not an object"),
-        ('{"stream": ["pointmaze-umaze-N[3]"]}', "has no list rows"),
+        ('{"format": 1, "stream": ["pointmaze-umaze-N[3]"]}', "has no rows"),
+        (
+            json.dumps(
+                {"format": 1, **dict.fromkeys(PROGRESS_KEYS), "stream": ["pointmaze-umaze-N[3]"]}
+            ),
+            "has no list rows",
+        ),
         ("{", "not readable JSON"),
     ],
-    ids=["empty-object", "list", "no-rows", "cut"],
+    ids=["empty-object", "list", "no-rows", "null-rows", "cut"],
 )
 def test_a_malformed_progress_file_is_named_on_resume(tiny_umaze, tmp_path, capsys, text, said):
     run_dir = stream_dir(tmp_path)
@@ -569,7 +574,10 @@ def test_leftovers_of_interrupted_writes_are_removed_on_the_next_run(tiny_umaze,
         (None, "no such file"),
         ("garbage", "not readable JSON"),
         (
-            '{"stream": ["a", "b"], "R": [[1.0, null], [0.5, 1.0]]}',
+            run_file_text(
+                RunDir.RESULTS,
+                StreamResults(stream=["a", "b"], R=[[1.0, None], [0.5, 1.0]]).to_json(),
+            ),
             "its stream has 2 tasks, this one 1",
         ),
     ],

@@ -11,7 +11,7 @@ import time
 
 import pytest
 import torch
-from helpers import ROOT, fit_tiny_stream, tiny_stream_args
+from helpers import ROOT, fit_tiny_stream, tiny_stream_args, write_run_files
 from probes import SLOW_STEPS, TINY_HISPO, cli_source, spawn, stream_dir, wait_for
 
 from hispo_pl.cli import main
@@ -132,18 +132,15 @@ def test_benchmark_lists_a_failed_method_in_the_table(tmp_path):
     from hispo_pl.benchmark import PlannedRun, Reporter, write_report
 
     out = tmp_path / "bench"
-    good = out / "runs" / "ftn" / "seed0"
-    good.mkdir(parents=True)
     R = [[0.5, None], [0.5, 0.25]]
     results = {
         "stream": ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"],
         "R": R,
         "wall_time_s": [1, 1],
     }
-    (good / "results.json").write_text(json.dumps(results))
+    write_run_files(out / "runs" / "ftn" / "seed0", results)
     bad = PlannedRun("broken", 0, out / "runs" / "broken" / "seed0", ("-m", "x"))
-    bad.run_dir.mkdir(parents=True)
-    (bad.run_dir / "run.json").write_text(json.dumps({"method": "broken", "seed": 0}))
+    write_run_files(bad.run_dir, launch={"method": "broken", "seed": 0})
     reporter = Reporter(total=2)
     reporter(bad, {"returncode": 2, "results": None, "log_tail": "boom"})
     reporter.close()

@@ -3,11 +3,10 @@ folder's MANIFEST.md (commit, command, machine per run) is the one its runs' run
 
 from __future__ import annotations
 
-import json
 import re
 
 import pytest
-from helpers import ROOT
+from helpers import ROOT, write_run_files
 
 from hispo_pl.benchmark import PlannedRun, export_runs, plan
 from hispo_pl.results import LaunchRecord
@@ -45,9 +44,7 @@ def test_a_run_without_a_clean_commit_is_named_loudly_at_launch_and_export(tmp_p
         LaunchRecord(commit="a" * 40 + "+dirty")
     )
     run = tmp_path / "out" / "scn" / "seed0"
-    run.mkdir(parents=True)
-    (run / "results.json").write_text(json.dumps({"stream": ["a"], "R": [[1.0]]}))
-    (run / "run.json").write_text(json.dumps({"commit": "b" * 40 + "+dirty"}))
+    write_run_files(run, {"stream": ["a"], "R": [[1.0]]}, {"commit": "b" * 40 + "+dirty"})
     export_runs(tmp_path / "out", tmp_path / "dest")
     err = capsys.readouterr().err
     assert "WARNING: exporting" in err and "uncommitted changes" in err

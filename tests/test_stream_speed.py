@@ -5,10 +5,9 @@ reference path (every switch of the fast path reads it while the command runs)."
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-from helpers import load_benchmark
+from helpers import load_benchmark, write_run_files
 
 from hispo_pl.benchmark.plan import fit_argv, stream_config_path
 from hispo_pl.nn import fast
@@ -53,8 +52,6 @@ def test_reference_child_runs_fit_on_the_reference_path(monkeypatch):
 
 def test_report_only_reads_exported_runs(tmp_path, capsys):
     for path, minutes in (("reference", 13.0), ("fast", 10.0)):
-        run = tmp_path / f"hispo-{path}" / "seed0"
-        run.mkdir(parents=True)
         results = {
             "stream": ["pointmaze-umaze-N[500]", "pointmaze-umaze-PO[500]"],
             "R": [[1.0, None], [1.0, 0.9 if path == "fast" else 0.95]],
@@ -65,7 +62,7 @@ def test_report_only_reads_exported_runs(tmp_path, capsys):
             "wall_time_s": [60 * minutes / 2] * 2,
             "phase_time_s": [{"training": 60 * minutes / 2 - 6, "evaluation": 6}] * 2,
         }
-        (run / "results.json").write_text(json.dumps(results))
+        write_run_files(tmp_path / f"hispo-{path}" / "seed0", results)
     assert script.main(["--report-only", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     (total,) = [line.split() for line in out.splitlines() if line.startswith("all ")]
