@@ -4,7 +4,7 @@ trained a second time.
 A method whose registry entry has a keep-last variant
 (:attr:`~hispo_pl.methods.MethodSpec.keep_last`: NetworkPerTask with ``keep: last``) trains the
 same as that sibling (the same random draws, the same weights, the same optimiser state:
-``tests/test_derive.py`` pins it against real runs). So the keep-last run follows from the
+``tests/benchmark/test_derive.py`` pins it against real runs). So the keep-last run follows from the
 keep-all one: after task ``i`` its checkpoint is the sibling's as the method rewrites it
 (:attr:`~hispo_pl.methods.KeepLast.checkpoint`), and its row of R differs only
 where a finished task ``j < i`` is evaluated (keep-last acts with network ``i``, keep-all with

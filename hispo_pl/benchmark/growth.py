@@ -3,7 +3,7 @@ network per task (SCN, FTN) or PNN's columns and laterals. Their MEM after each 
 stream of any length is what the module stores once it has grown for that many tasks, so it is
 computed by growing the product's own module as the loop does (``start_task`` then
 ``finish_task`` per task, :class:`~hispo_pl.modules.columns.GrowingPolicy`) without training.
-``tests/test_growth.py`` pins it to the stored size of committed runs.
+``tests/benchmark/test_growth.py`` pins it to the stored size of committed runs.
 
     memory = structural_memory(module_for(["configs/streams/pointmaze-1.yaml",
                                            "configs/methods/pnn.yaml"]), 12)

@@ -144,7 +144,7 @@ class DeviceHERSampler:
     its own seeded with ``seed`` (as the host sampler's numpy generator is), so a step copies
     nothing from the host.
 
-    Same keys, shapes and distributions as :class:`HERSampler` (``tests/test_sampler.py``
+    Same keys, shapes and distributions as :class:`HERSampler` (``tests/data/test_sampler.py``
     compares the two), but another random stream: a run that samples on the device draws
     other batches than one that samples on the host.
     """

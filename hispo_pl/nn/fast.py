@@ -13,7 +13,7 @@ any device torch runs on. Dropout is one draw of random bytes for all of a netwo
 Networks take this path while training with gradients enabled; evaluation, ``torch.func``
 transforms (which run in eval mode here) and batched subspace weights keep the plain modules.
 :func:`reference_path` switches the fast path off (plain modules, byte-by-byte masks, the
-default Adam, logging every step): the baseline of ``tests/test_fast_step.py`` and
+default Adam, logging every step): the baseline of ``tests/methods/test_fast_step.py`` and
 ``benchmarks/step_speed.py``.
 """
 

@@ -20,7 +20,7 @@ def residual_mlp_maths(
     output's dropout (3), each a map of a tensor. Every network of the backbone (plain, a
     subspace of them, a progressive column) is this with its own layers; the fast path
     (:func:`~hispo_pl.nn.fast.residual_mlp`) is its hand-written gradient for one set of
-    parameters, pinned to it by ``tests/test_fast_step.py``."""
+    parameters, pinned to it by ``tests/methods/test_fast_step.py``."""
     h = drops[0](F.gelu(norms[0](linears[0](x))))
     b = drops[1](F.gelu(norms[1](linears[1](h))))
     b = norms[2](linears[2](b))

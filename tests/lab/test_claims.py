@@ -1,0 +1,51 @@
+"""The claims page's verdicts follow stated rules from the committed files: the rules on their
+own, a claim that cannot be tested says what it needs, and the page embeds the report its runs
+give (tests/lab/test_docs.py checks the embed byte for byte)."""
+
+from __future__ import annotations
+
+import pytest
+
+from lab import claim_rules as rules
+from lab import claims
+
+
+def _stats(per: float, low: float, high: float, mem: float = 1.0) -> rules.Stats:
+    stats = rules.Stats(((per,),), per, 0.0, 0.0, mem, 1)
+    stats.__dict__["per_iqm"] = (per, low, high)  # the interval as drawn, without a bootstrap
+    return stats
+
+
+def test_interval_rules():
+    a, b, c = _stats(99, 98.5, 99.5), _stats(98.8, 98.0, 98.9), _stats(97, 96.5, 97.5)
+    assert rules.overlaps(a, b) and rules.overlaps(b, a)
+    assert not rules.overlaps(a, c) and rules.below(c, a) and not rules.below(a, c)
+    assert rules.verdict(True) == "holds" and rules.verdict(False) == "does not hold"
+
+
+class _Empty:
+    """Committed runs of a protocol with none of its streams run yet."""
+
+    def __init__(self):
+        self.cache = {}
+
+    def measured(self, stream):
+        return []
+
+
+@pytest.mark.parametrize("claim", claims.CLAIMS, ids=lambda c: c.text[:40])
+def test_a_claim_without_its_runs_is_not_tested(claim):
+    assert claim.test(_Empty()) is None and claim.needs
+
+
+def test_the_page_says_not_tested_for_a_protocol_without_runs(tmp_path):
+    text = claims.claims_markdown(tmp_path / "house", tmp_path / "protocol")
+    rows = [line for line in text.splitlines() if line.startswith("| ") and "§" in line]
+    assert len(rows) >= 10 and all(row.count("not tested here: needs") == 2 for row in rows)
+
+
+def test_growth_order_names_the_polynomial_a_memory_curve_follows():
+    assert rules.growth_order([1.0, 2.0, 3.0, 4.0]) == 1
+    assert rules.growth_order([1.0, 2.96, 5.88, 9.77, 14.61]) == -1  # rounded: not exact
+    assert rules.growth_order([k * k + 3 * k + 1 for k in range(8)]) == 2
+    assert rules.growth_order([2.0**k for k in range(8)]) == -1
