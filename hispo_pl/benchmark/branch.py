@@ -7,9 +7,9 @@ finished run at ε_a up to the first task where ε_b decides otherwise on the lo
 recorded (``decisions.jsonl``). Those tasks are copied instead of trained (checkpoints, rows of
 R, decisions with ε_b written in, the fingerprint with ε_b's tolerances), and the run at ε_b
 resumes from there through the loop's own resume, which trains task ``k`` from the checkpoint
-of task ``k - 1`` with the same seed as an uninterrupted run (``tests/benchmark/test_branch.py`` pins a
-branched run to a real one). A run that agrees on every task is copied whole and its fit only
-writes the results.
+of task ``k - 1`` with the same seed as an uninterrupted run
+(``tests/benchmark/test_branch.py`` pins a branched run to a real one). A run that agrees on
+every task is copied whole and its fit only writes the results.
 
     k = shared_tasks(RunDir("runs/eps0.01").decisions(), {"high": 0.05, "low": 0.05}, 4)
     branch_run("runs/eps0.01", "runs/eps0.05", k, {"high": 0.05, "low": 0.05}, record)
