@@ -67,13 +67,16 @@ def test_data_generate_into_a_pipe_prints_lines_not_carriage_returns(monkeypatch
 
 
 def test_evaluate_into_a_pipe_prints_lines_not_carriage_returns(tmp_path, capsys):
-    from test_config import LEGACY
+    from hispo_pl.config import BackboneConfig
+    from hispo_pl.modules import HBC
 
-    fixture = torch.load(LEGACY, weights_only=True)
-    path = tmp_path / "task_02.ckpt"
-    torch.save(fixture["checkpoints"]["hispo"], path)
+    module = HBC(4, 2, backbone=BackboneConfig(high_hidden=8, low_hidden=16))
+    checkpoint = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams)}
+    module.on_save_checkpoint(checkpoint)
+    path = tmp_path / "task_01.ckpt"
+    torch.save(checkpoint, path)
     args = ["evaluate", "--ckpt", str(path), "--task", "pointmaze-umaze", "--episodes", "3"]
-    assert main([*args, "--as-task", "1"]) == 0
+    assert main(args) == 0
     captured = capsys.readouterr()
     assert "\r" not in captured.err + captured.out
     assert _progress_lines(captured.err, "eval pointmaze-umaze-N[500]") == [(1, 3), (2, 3), (3, 3)]

@@ -62,7 +62,7 @@ NET = BackboneConfig(high_hidden=16, low_hidden=64, binary_actions=BUTTONS)
 FLAT = BackboneConfig(kind="bc", low_hidden=64, binary_actions=BUTTONS)
 MODULES = {
     "hbc": lambda: HBC(OBS, ACT, GOAL, NET),
-    "bc": lambda: BC(OBS, ACT, GOAL, FLAT),
+    "bc": lambda: BC(OBS, ACT, GOAL, backbone=FLAT),
     "hispo": lambda: HiSPO(OBS, ACT, GOAL, NET),
     "cspo": lambda: CSPO(OBS, ACT, GOAL, NET),
     "hilow": lambda: HiLOW(OBS, ACT, GOAL, NET, rank=2),
@@ -105,7 +105,7 @@ def test_every_method_learns_buttons_and_presses_them(name):
 def test_reference_model_has_the_same_head():
     module = HiSPO(OBS, ACT, GOAL, NET)
     assert module.reference_model().low.binary == BUTTONS
-    assert BC(OBS, ACT, GOAL, FLAT).reference_model().policy.binary == 6
+    assert BC(OBS, ACT, GOAL, backbone=FLAT).reference_model().policy.binary == 6
 
 
 def test_search_scores_buttons_by_probability():

@@ -23,7 +23,7 @@ from hispo_pl.data.datamodule import TaskDataModule
 from hispo_pl.loop import ContinualLoop, task_phases
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.hispo import SUBSPACES, HiSPO
-from hispo_pl.results import StreamResults
+from hispo_pl.results import RESULTS_FORMAT, StreamResults
 from hispo_pl.rundir import RunDir
 from hispo_pl.tasks import Task
 
@@ -81,7 +81,7 @@ def uninterrupted(tiny_umaze, tmp_path_factory):
 def test_results_and_checkpoints_are_written(uninterrupted):
     run_dir, results = uninterrupted["dir"], uninterrupted["results"]
     on_disk = json.loads((run_dir / RunDir.RESULTS).read_text())
-    assert on_disk == results
+    assert on_disk.pop("format") == RESULTS_FORMAT and on_disk == results
     for key in ("stream", "R", "PER", "BWT", "stored_bytes", "anchors", "alphas", "wall_time_s"):
         assert key in results, key
     assert "FWT" not in results and "MEM" not in results  # no baselines given
