@@ -77,6 +77,7 @@ def _benchmark_args(configs: Path, out: Path, methods: str, *launcher: str) -> l
     ]
 
 
+@pytest.mark.e2e
 def test_benchmark_local_end_to_end_and_skip(tiny_umaze, tmp_path, capsys):
     configs = benchmark_config_dir(tmp_path, ["hispo", "scn"])
     out = tmp_path / "out"

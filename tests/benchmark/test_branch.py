@@ -57,6 +57,7 @@ def _tolerance_sharing(run: Path, tasks: int) -> float:
     raise AssertionError(f"no tolerance shares {tasks} tasks with {run}: {decisions}")
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("shared", [2, 3], ids=["trains-on", "copied-whole"])
 def test_a_branched_run_equals_a_real_run_of_its_tolerance(root_run, tmp_path, shared):
     eps = _tolerance_sharing(root_run, shared)
@@ -135,6 +136,7 @@ def _tree_grid_configs(tmp_path: Path, values: list[float]) -> Path:
     return grid_config_dir(tmp_path, "tree", grid)
 
 
+@pytest.mark.e2e
 def test_the_grid_trains_a_tolerance_sweep_as_a_tree(tiny_umaze, tmp_path, capsys):
     pytest.importorskip("rliable")
     values = [0.1, 0.0, 20.0]  # 20: prunes every anchor, so it parts at the first decision

@@ -32,6 +32,7 @@ def real_runs(tiny_umaze, tmp_path_factory) -> tuple[Path, dict[str, Path]]:
     return root, {m: fit_tiny_stream(m, root / m, TINY_STREAM, *BUDGET)[1] for m in methods}
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("target,source", PAIRS)
 def test_a_derived_run_equals_a_real_run_of_the_same_seed(real_runs, target, source):
     root, runs = real_runs
@@ -132,6 +133,7 @@ def test_the_grid_derives_a_keep_last_cell_whose_sibling_trains_or_left_its_chec
     assert grid_plan.plan_cells(grid, ["pointmaze-1"], lambda c: None).from_sibling == []
 
 
+@pytest.mark.e2e
 def test_grid_trains_the_sibling_then_derives_the_keep_last_cell(tiny_umaze, tmp_path, capsys):
     configs = tmp_path / "configs"
     for sub in ("methods", "streams"):

@@ -204,6 +204,7 @@ def _tiny_grid_configs(tmp_path: Path) -> Path:
     return grid_config_dir(tmp_path, "tiny", grid)
 
 
+@pytest.mark.e2e
 def test_grid_end_to_end_exports_derives_and_resumes(tiny_umaze, tmp_path, capsys):
     pytest.importorskip("rliable")
     configs = _tiny_grid_configs(tmp_path)

@@ -63,6 +63,7 @@ def test_growth_halves_and_per_after_each_task():
     assert per_after_each_task([[0.5, None], [1.0, 0.0]]) == [0.5, 0.5]
 
 
+@pytest.mark.e2e
 def test_the_report_reads_each_run_s_files(committed_runs):
     grid = _grid()
     data = growth_data(grid, Committed(committed_runs))

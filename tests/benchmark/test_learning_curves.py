@@ -70,6 +70,7 @@ def test_report_names_the_budget_once_every_task_of_its_setting_has_runs(tmp_pat
     assert "Budget B = 30 steps" in text  # large is 5 points short at step 20
 
 
+@pytest.mark.e2e
 def test_the_study_runs_the_products_fit_exports_and_its_page_embeds_the_report(
     tiny_umaze, tmp_path, monkeypatch
 ):

@@ -110,6 +110,7 @@ def test_on_a_terminal_the_task_end_evaluation_and_search_draw_a_bar(
     assert moved and max(map(int, moved)) > 0, err[-3000:]
 
 
+@pytest.mark.e2e
 def test_a_stream_with_a_from_scratch_reference_records_fwt(tiny_umaze, tmp_path, capsys):
     assert main(tiny_stream_args("scn", tmp_path / "scn")) == 0
     scratch = tmp_path / "scn" / "pointmaze-1" / "seed0" / "results.json"

@@ -52,6 +52,7 @@ def test_notebook_is_committed_without_outputs():
     assert code and all(not c.outputs and c.execution_count is None for c in code)
 
 
+@pytest.mark.e2e
 def test_notebook_plots_a_real_stream_run(tiny_umaze, tmp_path, monkeypatch):
     callbacks = ("--trainer.callbacks", json.dumps(CALLBACKS))
     results, run_dir = fit_tiny_stream("hispo", tmp_path, STREAM, *callbacks)

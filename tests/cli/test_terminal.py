@@ -142,6 +142,7 @@ def test_the_model_summary_is_one_line_without_flops(tiny_umaze):
     assert [type(cb) for cb in swapped[:3]] == [ParameterSummary] * 3
 
 
+@pytest.mark.e2e
 def test_a_stream_on_an_80_column_terminal(tiny_umaze, tmp_path):
     """The whole stream in a pseudo-terminal, as a user's screen shows it."""
     capture = load_benchmark("terminal_capture")

@@ -99,6 +99,7 @@ def test_the_wheel_carries_none_of_the_repositorys_own_tools(wheel_venv):
     assert not [n for n, text in code.items() if re.search(r"[\"']git[\"']|git log", text)]
 
 
+@pytest.mark.e2e
 def test_a_user_outside_the_checkout_copies_plans_and_fits(wheel_venv, tiny_umaze, tmp_path):
     _, venv = wheel_venv
     here = tmp_path / "work"

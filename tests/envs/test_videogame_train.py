@@ -77,6 +77,7 @@ def test_hbc_fit_and_evaluate_with_buttons(town_data, tmp_path, capsys):
     )
 
 
+@pytest.mark.e2e
 def test_hispo_stream_over_two_mazes(town_data, tmp_path, capsys):
     stream = [f"simpletown-OXO[{EPISODES}]", f"simpletown-BASE[{EPISODES}]"]
     args = _fit_args(

@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import sys
 
+import pytest
 import torch
 from helpers import load_benchmark
 
 
+@pytest.mark.e2e
 def test_the_gpu_benchmark_runs_without_a_gpu(tiny_umaze, monkeypatch, capsys):
     gpu_speed = load_benchmark("gpu_speed")
     args = ["--task", "pointmaze-umaze-N[6]", "--methods", "HBC", "HiSPO-4", "--steps", "2"]

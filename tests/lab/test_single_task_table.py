@@ -92,6 +92,7 @@ def test_a_single_task_run_is_finished_by_its_result_file(tmp_path, capsys):
     assert finished_run_dirs(tmp_path) == []  # a stream's results.json marks a stream run
 
 
+@pytest.mark.e2e
 def test_main_launches_through_the_runner_and_skips_finished_runs(tiny_umaze, tmp_path, capsys):
     args = ["--config", CONFIG, "--setting", "n=", "--tasks", "pointmaze-umaze-N[3]"]
     args += ["--workers", "1", "--out", str(tmp_path), "--", "--trainer.max_steps", "3"]

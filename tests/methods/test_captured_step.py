@@ -312,6 +312,7 @@ def test_a_captured_fit_on_a_gpu_with_groups(tmp_path):
     assert module._program.graph is None  # released at the task's end
 
 
+@pytest.mark.e2e
 def test_a_stream_trains_with_the_captured_step_and_device_batches(tiny_umaze, tmp_path):
     """``hispo-pl fit`` end to end on the CPU with every option of the GPU path: HiSPO's
     search, pruning and evaluation run as usual around the captured step."""

@@ -253,6 +253,7 @@ def test_critic_callbacks_check_the_module_and_their_order():
 # --- a tiny stream end to end ---------------------------------------------------------------------
 
 
+@pytest.mark.e2e
 def test_csp_end_to_end_through_the_cli(tiny_umaze, tmp_path):
     results, run_dir = fit_tiny_stream("csp", tmp_path)
     assert len(results["R"]) == 2 and results["BWT"] == 0.0

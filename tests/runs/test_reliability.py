@@ -307,6 +307,7 @@ def test_user_errors_are_one_paragraph_and_exit_2(argv, said, capsys):
     assert said in err and "Traceback" not in err
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_ctrl_c_or_kill_says_how_to_resume(tiny_umaze, tmp_path, sig):
     args = tiny_stream_args("ftn", tmp_path, ["pointmaze-umaze-N[3]"], "--trainer.max_steps", "400")
@@ -329,6 +330,7 @@ RolloutEvaluator.run = _slow
 """
 
 
+@pytest.mark.e2e
 def test_kill_outside_a_training_step_stops_the_stream(tiny_umaze, tmp_path):
     """Lightning only notes a SIGTERM during its training steps; one that arrives while the
     task-end callbacks roll out must stop the stream all the same."""
@@ -357,6 +359,7 @@ RolloutEvaluator.run = _run_with_a_finaliser
 """
 
 
+@pytest.mark.e2e
 def test_a_kill_swallowed_by_a_finaliser_still_stops_the_stream(tiny_umaze, tmp_path):
     """A SIGTERM's KeyboardInterrupt raised inside ``__del__`` is dropped by Python, which
     would print "Exception ignored"; the stop request stays, is not printed as ignored, and

@@ -50,6 +50,7 @@ def test_a_second_run_on_the_same_directory_names_the_holder(tiny_run, capsys):
     assert main(args) == 0  # released
 
 
+@pytest.mark.e2e
 def test_kill_after_decisions_before_progress_keeps_one_record_per_task(tiny_umaze, tmp_path):
     config = tmp_path / "hispo.yaml"
     config.write_text(TINY_HISPO)
@@ -97,6 +98,7 @@ def test_results_and_progress_are_written_atomically(tiny_run, monkeypatch):
 # --- 5. resume inside a task ------------------------------------------------------------------
 
 
+@pytest.mark.e2e
 def test_killed_inside_a_task_resumes_there_and_ends_identical(tiny_umaze, tmp_path, capsys):
     """A resume promises the uninterrupted run bit for bit in the same environment: the killed
     child ran on this machine with this process's kernels and one thread (``probes.spawn`` sets
@@ -149,6 +151,7 @@ def test_benchmark_lists_a_failed_method_in_the_table(tmp_path):
     assert "| broken | 0 | failed (exit 2)" in table and "| ftn |" in table
 
 
+@pytest.mark.e2e
 def test_killing_the_benchmark_stops_its_runs(tiny_umaze, tmp_path):
     """``kill`` of the benchmark stops the fits it launched (they are not left running), and
     each says how to resume."""
@@ -192,6 +195,7 @@ def test_benchmark_dry_run_validates_the_overrides(tmp_path, capsys):
 # --- 9. the benchmark's fits import no code from the working folder --------------------------
 
 
+@pytest.mark.e2e
 def test_a_fit_the_benchmark_launches_never_imports_from_the_working_folder(tmp_path, monkeypatch):
     """``python -m`` puts the working folder on the import path; a config naming a module
     there must not run it, unless the user puts the folder there (PYTHONPATH=.)."""

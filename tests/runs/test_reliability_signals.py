@@ -20,6 +20,7 @@ import subprocess
 import sys
 import time
 
+import pytest
 from helpers import ROOT, tiny_stream_args
 from probes import stream_dir
 
@@ -153,6 +154,7 @@ def _resumable_state(run_dir) -> int:
     return done
 
 
+@pytest.mark.e2e
 def test_one_sigterm_at_a_random_moment_always_stops_the_stream_cleanly(tiny_umaze, tmp_path):
     seed = int(os.environ.get("HISPO_PL_SIGNAL_SEED", random.randrange(10**6)))
     rng = random.Random(seed)
