@@ -11,7 +11,8 @@ from .data.datamodule import TaskDataModule
 from .errors import ConfigError, RunDirError
 from .results import StreamResults, fwt_reference
 from .run_checks import plain_config, run_fingerprint
-from .rundir import RunDir, read_results_file, task_label
+from .run_files import read_results_file
+from .rundir import RunDir, task_label
 from .tasks import Task
 
 if TYPE_CHECKING:

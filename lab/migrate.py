@@ -49,7 +49,8 @@ from hispo_pl.results import (
     TaskFitResult,
 )
 from hispo_pl.run_checks import callback_labels
-from hispo_pl.rundir import RUN_FILES, RunDir, run_file_text
+from hispo_pl.run_files import RUN_FILES, run_file_text
+from hispo_pl.rundir import RunDir
 
 DECISIONS = RunDir.DECISIONS
 NAMES = (*RUN_FILES, DECISIONS)

@@ -10,7 +10,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..results import LaunchRecord, StreamResults, TaskFitResult
-from ..rundir import RunDir, read_json_object
+from ..run_files import read_json_object
+from ..rundir import RunDir
 from .configs import configured_max_steps, configured_value
 
 PLAN_FILE = "benchmark.json"

@@ -19,7 +19,8 @@ from hispo_pl.cli import main
 from hispo_pl.config import BackboneConfig
 from hispo_pl.errors import TrainingDivergedError
 from hispo_pl.results import PROGRESS_KEYS, StreamResults
-from hispo_pl.rundir import RunDir, run_file_text
+from hispo_pl.run_files import run_file_text
+from hispo_pl.rundir import RunDir
 
 # --- 1. data generate: a dataset cut short counts as missing --------------------------------
 

@@ -20,7 +20,8 @@ from hispo_pl.results import (
     decisions_table,
     fwt_reference,
 )
-from hispo_pl.rundir import RunDir, run_file_text
+from hispo_pl.run_files import run_file_text
+from hispo_pl.rundir import RunDir
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "docs" / "results"
