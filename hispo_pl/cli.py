@@ -43,7 +43,7 @@ import signal  # noqa: E402
 import warnings  # noqa: E402
 
 from .errors import Interrupted, UserError, resumable  # noqa: E402
-from .stopping import terminate_as_interrupt  # noqa: E402
+from .stopping import interrupt_behind, terminate_as_interrupt  # noqa: E402
 
 
 def _quiet_known_warnings() -> None:
@@ -111,6 +111,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as err:
         hint = str(err) if isinstance(err, Interrupted) else "interrupted"
         print(f"\n{prog}: {hint}", file=sys.stderr)
+        return 128 + (received[0] if received else signal.SIGINT)
+    except Exception as err:
+        if not interrupt_behind(err):  # a stop that an import wrapped; anything else: a bug
+            raise
+        print(f"\n{prog}: interrupted", file=sys.stderr)
         return 128 + (received[0] if received else signal.SIGINT)
 
 

@@ -32,6 +32,7 @@ from .metrics import continual_metrics, memory_ratio, module_bytes, results_row_
 from .results import Progress, StreamResults
 from .resume import MissingCheckpointError, RunDirLock, TaskCheckpoint, resume_progress
 from .rundir import RunDir, task_label
+from .stopping import interrupt_behind
 from .stream_report import log_stream_end, log_task_end
 from .tasks import Task, parse_task
 
@@ -69,9 +70,10 @@ def _event_writer_errors_said_once():
 def fit_interruptibly(trainer: L.Trainer, module: L.LightningModule, datamodule, **kwargs) -> None:
     """``trainer.fit``, where Ctrl-C raises ``KeyboardInterrupt`` again: Lightning turns it into
     ``sys.exit(1)`` after its own shutdown and leaves SIGINT ignored. The files Lightning
-    writes by name stay in the logger's folder (:func:`~hispo_pl.io.files_in_log_dir`), and an
+    writes by name stay in the logger's folder (:func:`~hispo_pl.io.files_in_log_dir`), an
     error of the file system without a path (TensorBoard's writer gives none) names that
-    folder."""
+    folder, and a stop that an import wrapped in another error is the stop again
+    (:func:`~hispo_pl.stopping.interrupt_behind`)."""
     files_in_log_dir(trainer)
     try:
         with _event_writer_errors_said_once():
@@ -81,7 +83,12 @@ def fit_interruptibly(trainer: L.Trainer, module: L.LightningModule, datamodule,
             raise
         signal.signal(signal.SIGINT, signal.default_int_handler)
         raise KeyboardInterrupt from None
-    except OSError as err:  # the writer of TensorBoard's event files says no path
+    except Exception as err:
+        if interrupt_behind(err):  # a stop that an import wrapped in its own error
+            raise KeyboardInterrupt from None
+        if not isinstance(err, OSError):
+            raise
+        # the writer of TensorBoard's event files says no path
         if err.filename is not None or err.errno not in DISK_ERRORS or trainer.log_dir is None:
             raise
         raise OSError(err.errno, err.strerror, trainer.log_dir) from err

@@ -75,3 +75,29 @@ def terminate_as_interrupt():
 def stop_requested() -> bool:
     """Whether a signal asked the running command to stop."""
     return bool(_received)
+
+
+def interrupt_behind(err: BaseException) -> bool:
+    """Whether a ``KeyboardInterrupt`` is in ``err``'s chain of causes. A stop that lands while
+    a C extension initialises (``import mujoco`` at a task's first evaluation) comes out as
+    ``ImportError: initialization failed`` caused by the interrupt: that error is the stop
+    (or the Ctrl-C).
+
+    Example:
+        >>> try:
+        ...     try:
+        ...         raise KeyboardInterrupt
+        ...     except KeyboardInterrupt as stop:
+        ...         raise ImportError("initialization failed") from stop
+        ... except ImportError as err:
+        ...     interrupt_behind(err), interrupt_behind(ValueError())
+        (True, False)
+    """
+    seen: set[int] = set()
+    link: BaseException | None = err
+    while link is not None and id(link) not in seen:
+        if isinstance(link, KeyboardInterrupt):
+            return True
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
+    return False

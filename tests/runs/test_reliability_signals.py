@@ -202,3 +202,59 @@ def test_one_sigterm_at_a_random_moment_always_stops_the_stream_cleanly(tiny_uma
                 assert results[key] == reference[key], (state, key)
     finally:
         server.close()
+
+
+def test_a_stop_an_import_wrapped_in_its_own_error_stops_the_fit(tiny_umaze):
+    """A SIGTERM landing while a C extension initialises (``import mujoco`` at a task's first
+    evaluation) comes out as ``ImportError: initialization failed`` caused by the interrupt:
+    the fit stops as on any stop, with no traceback."""
+    import lightning as L
+    from helpers import quiet_trainer
+
+    from hispo_pl.config import BackboneConfig
+    from hispo_pl.data.datamodule import TaskDataModule
+    from hispo_pl.loop import fit_interruptibly
+    from hispo_pl.modules import HBC
+    from hispo_pl.stopping import terminate_as_interrupt
+
+    class StopInsideAnImport(L.Callback):
+        def on_train_start(self, trainer, pl_module):
+            try:
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(5)
+            except KeyboardInterrupt as stop:  # as a C extension's initialisation wraps it
+                raise ImportError("initialization failed") from stop
+
+    module = HBC(4, 2, backbone=BackboneConfig(high_hidden=8, low_hidden=16))
+    data = TaskDataModule(task="pointmaze-umaze-N[6]", batch_size=16, steps_per_epoch=2)
+    trainer = quiet_trainer(4, callbacks=[StopInsideAnImport()])
+    with terminate_as_interrupt() as received, pytest.raises(KeyboardInterrupt) as stopped:
+        fit_interruptibly(trainer, module, data)
+    assert received == [signal.SIGTERM] and stopped.value.__cause__ is None
+
+
+def test_the_command_says_interrupted_for_a_stop_an_import_wrapped(monkeypatch, capsys):
+    import hispo_pl.cli as cli
+
+    def wrapped_stop(argv):
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)
+        except KeyboardInterrupt as stop:
+            raise ImportError("initialization failed") from stop
+
+    monkeypatch.setattr(cli, "_dispatch", wrapped_stop)
+    assert cli.main(["data", "list"]) == 128 + signal.SIGTERM
+    err = capsys.readouterr().err
+    assert "interrupted" in err and "Traceback" not in err
+
+
+def test_an_error_without_a_stop_behind_it_keeps_its_traceback(monkeypatch):
+    import hispo_pl.cli as cli
+
+    def broken(argv):
+        raise ImportError("initialization failed")
+
+    monkeypatch.setattr(cli, "_dispatch", broken)
+    with pytest.raises(ImportError):
+        cli.main(["data", "list"])
