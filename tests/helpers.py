@@ -50,6 +50,14 @@ def without_times(record: dict) -> dict:
     return {k: v for k, v in record.items() if k not in TIMES}
 
 
+def checkpoint_of(module) -> dict:
+    """The checkpoint Lightning would save of ``module`` as it stands: its state, its
+    hyperparameters and what the module's ``on_save_checkpoint`` adds (its class, its task)."""
+    checkpoint = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams)}
+    module.on_save_checkpoint(checkpoint)
+    return checkpoint
+
+
 def quiet_trainer(max_steps: int, **kwargs) -> L.Trainer:
     """A short CPU Trainer that writes nothing and prints nothing unless ``kwargs`` say so."""
     options = {

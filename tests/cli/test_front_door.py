@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from helpers import TINY_STREAM, tiny_stream_args
+from helpers import TINY_STREAM, checkpoint_of, tiny_stream_args
 
 from hispo_pl.cli import main
 
@@ -71,8 +71,7 @@ def test_evaluate_into_a_pipe_prints_lines_not_carriage_returns(tmp_path, capsys
     from hispo_pl.modules import HBC
 
     module = HBC(4, 2, backbone=BackboneConfig(high_hidden=8, low_hidden=16))
-    checkpoint = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams)}
-    module.on_save_checkpoint(checkpoint)
+    checkpoint = checkpoint_of(module)
     path = tmp_path / "task_01.ckpt"
     torch.save(checkpoint, path)
     args = ["evaluate", "--ckpt", str(path), "--task", "pointmaze-umaze", "--episodes", "3"]
@@ -384,8 +383,7 @@ def test_the_acting_example_runs_as_written(tmp_path, monkeypatch):
     # a PointMaze-like policy: its low level reads the goal-space velocity
     module = HiSPO(4, 2, backbone=BackboneConfig(high_hidden=8, low_hidden=16, low_velocity=True))
     module.task_index = 1
-    checkpoint = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams)}
-    module.on_save_checkpoint(checkpoint)
+    checkpoint = checkpoint_of(module)
     run = tmp_path / "runs/demo/seed0"
     run.mkdir(parents=True)
     torch.save(checkpoint, run / "task_02.ckpt")

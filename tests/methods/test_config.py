@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 import torch
+from helpers import checkpoint_of
 
 from hispo_pl.config import BackboneConfig
 from hispo_pl.errors import CheckpointError
@@ -16,8 +17,7 @@ def test_a_checkpoint_of_an_earlier_layout_is_refused_in_one_line(tmp_path):
     """Flat hyperparameters (``high_hidden``, ``lr``), as checkpoints had them before the
     configs: refused, naming the file, rather than guessed at."""
     module = HBC(4, 2, backbone=BackboneConfig(high_hidden=8, low_hidden=16))
-    checkpoint = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams)}
-    module.on_save_checkpoint(checkpoint)
+    checkpoint = checkpoint_of(module)
     flat = {
         k: v for k, v in checkpoint["hyper_parameters"].items() if k not in ("backbone", "optim")
     }
@@ -31,8 +31,7 @@ def test_a_checkpoint_of_an_earlier_layout_is_refused_in_one_line(tmp_path):
 
 def test_a_new_checkpoint_holds_plain_values(tmp_path):
     module = HiSPO(4, 2, backbone=BackboneConfig(high_hidden=8, low_hidden=16, low_obs=False))
-    checkpoint = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams)}
-    module.on_save_checkpoint(checkpoint)
+    checkpoint = checkpoint_of(module)
     torch.save(checkpoint, tmp_path / "m.ckpt")
     loaded = read_checkpoint(tmp_path / "m.ckpt")  # weights_only=True
     assert loaded["hyper_parameters"]["backbone"]["low_obs"] is False

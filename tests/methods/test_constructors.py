@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import pytest
 import torch
+from helpers import checkpoint_of
 from jsonargparse import ArgumentParser
 
 from hispo_pl.config import BackboneConfig, OptimConfig, plain
@@ -71,8 +72,7 @@ def test_the_hyperparameters_hold_the_base_arguments_and_round_trip(method, tmp_
         assert hparams[name] == value
     assert method(4, 2, backbone=backbone, **METHODS[method]).hparams == module.hparams
 
-    checkpoint = {"state_dict": module.state_dict(), "hyper_parameters": hparams}
-    module.on_save_checkpoint(checkpoint)
+    checkpoint = checkpoint_of(module)
     torch.save(checkpoint, tmp_path / "task_01.ckpt")
     loaded = GoalConditionedBC.from_checkpoint_file(str(tmp_path / "task_01.ckpt"))
     assert type(loaded) is method
