@@ -49,3 +49,42 @@ def test_growth_order_names_the_polynomial_a_memory_curve_follows():
     assert rules.growth_order([1.0, 2.96, 5.88, 9.77, 14.61]) == -1  # rounded: not exact
     assert rules.growth_order([k * k + 3 * k + 1 for k in range(8)]) == 2
     assert rules.growth_order([2.0**k for k in range(8)]) == -1
+
+
+def test_a_verdict_on_fewer_seeds_than_the_papers_is_provisional():
+    three = rules.Stats(((99.0,), (98.0,), (99.5,)), 98.8, 0.0, 0.0, 2.0, 3)
+    one = rules.Stats(((97.0,),), 97.0, 0.0, 0.0, 4.0, 1)
+    assert rules.judged({"hispo": three}, True) == "holds"
+    assert rules.judged({"hispo": three, "scn": one}, False) == (
+        "provisionally does not hold (1 seed of 3)"
+    )
+    assert rules.seeds_text({"hispo": three, "scn": one}) == "seeds hispo 3, scn 1"
+
+
+class _Runs:
+    """Committed runs of a protocol: ``{stream: {method: [PER per seed]}}``, MEM 1 each."""
+
+    def __init__(self, per: dict):
+        self.cache, self.per = {}, per
+
+    def measured(self, stream):
+        from types import SimpleNamespace
+
+        return [
+            (
+                SimpleNamespace(method=m, seed=s),
+                {"PER": p, "BWT": 0.0, "FWT": 0.0, "MEM": 1.0},
+                None,
+            )
+            for m, seeds in self.per.get(stream, {}).items()
+            for s, p in enumerate(seeds)
+        ]
+
+
+def test_a_claim_names_the_seeds_its_figures_rest_on():
+    both = {"hispo": [0.99], "ftn": [0.98], "scn": [0.97]}
+    runs = _Runs({"pointmaze-1": both, "pointmaze-2": both})
+    claim = next(c for c in claims.CLAIMS if c.text.startswith("PointMaze: FTN and SCN"))
+    figures, verdict = claim.test(runs)
+    assert figures.endswith("(1 seed each)")
+    assert verdict == "provisionally does not hold (1 seed of 3)"  # equal MEM: not "more"
