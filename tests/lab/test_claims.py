@@ -88,3 +88,12 @@ def test_a_claim_names_the_seeds_its_figures_rest_on():
     figures, verdict = claim.test(runs)
     assert figures.endswith("(1 seed each)")
     assert verdict == "provisionally does not hold (1 seed of 3)"  # equal MEM: not "more"
+
+
+def test_transfer_is_judged_where_its_own_methods_ran_without_the_rest_of_table_1():
+    runs = _Runs({"pointmaze-1": {"ft1": [0.5], "ftn": [0.98], "hispo": [0.99]}})
+    claim = next(c for c in claims.CLAIMS if c.text.startswith("FT1 and FTN transfer"))
+    figures, _ = claim.test(runs)
+    assert figures.startswith("ft1: FWT 0.0; ftn: FWT 0.0; hispo: FWT 0.0")
+    table1 = next(c for c in claims.CLAIMS if c.where == "Table 1")
+    assert table1.test(runs) is None  # PNN, the regularisers and FZ have no run
