@@ -55,6 +55,8 @@ class Stats:
             return f"BWT {self.bwt:.1f}"
         if what == "fwt":
             return f"FWT {self.fwt:.1f}"
+        if self.seeds < 2:  # a bootstrap over one seed draws no interval
+            return f"PER {point:.1f}"
         return f"PER {point:.1f} [{low:.1f}, {high:.1f}]"
 
 

@@ -206,7 +206,8 @@ def claims_markdown(house_root: Path, protocol_root: Path) -> str:
         )
     legend = (
         "\nOurs: per method over the streams named (runs × streams), PER's interquartile mean "
-        "with its 95 % stratified bootstrap interval and the mean MEM, BWT or FWT; the paper's: "
+        "with its 95 % stratified bootstrap interval (none on one seed) and the mean MEM, BWT "
+        "or FWT; the paper's: "
         "the mean of its per-stream tables (PER / MEM), or its Table 1 and 2 as printed. "
         "Rules: *nearly matches*, *as well* and *approaches* hold when HiSPO's PER interval "
         "overlaps or lies above the other's; *fail* and *far below* when the interval lies wholly "

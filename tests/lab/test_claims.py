@@ -97,3 +97,8 @@ def test_transfer_is_judged_where_its_own_methods_ran_without_the_rest_of_table_
     assert figures.startswith("ft1: FWT 0.0; ftn: FWT 0.0; hispo: FWT 0.0")
     table1 = next(c for c in claims.CLAIMS if c.where == "Table 1")
     assert table1.test(runs) is None  # PNN, the regularisers and FZ have no run
+
+
+def test_one_seed_shows_no_interval():
+    one = rules.Stats(((97.0, 95.0),), 96.0, 0.0, 0.0, 4.0, 2)
+    assert one.text() == "PER 96.0"
