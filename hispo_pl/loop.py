@@ -235,8 +235,9 @@ class ContinualLoop:
         self.module.log_prefix = f"task_{task_label(k):02d}/"
         trainer = self.make_trainer(k)
         partial = self.run_dir.partial_checkpoint(k)
+        checkpoint = TaskCheckpoint(partial, self.checkpoint_every)
         if self.checkpoint_every > 0:
-            trainer.callbacks.append(TaskCheckpoint(partial, self.checkpoint_every))
+            trainer.callbacks.append(checkpoint)
         resume = partial if partial.exists() and self.checkpoint_every > 0 else None
         if resume is not None:
             print(f"[hispo-pl] resuming task {task_label(k)} from {partial.name}")
@@ -246,6 +247,7 @@ class ContinualLoop:
         fit_start = time.perf_counter()
         fit_interruptibly(trainer, self.module, datamodule, ckpt_path=resume, weights_only=True)
         phases = task_phases(time.perf_counter() - fit_start, self.module.task_record.seconds)
+        phases["training"] += checkpoint.seconds_before  # the steps an earlier process trained
         row = self.module.task_record.success_row  # RolloutEvaluation's, at the task's end
         memory_now = self._memory()  # after the task's decisions
         if row is None:
@@ -267,7 +269,7 @@ class ContinualLoop:
         )
         if self.config_text is not None:
             self.run_dir.write_task_config(k, self.config_text)
-        elapsed = time.perf_counter() - start
+        elapsed = time.perf_counter() - start + checkpoint.seconds_before
         progress.finish_task(row, elapsed, phases, datamodule.dataset_use.as_json(), memory_now)
         self.run_dir.write_progress(progress)
         partial.unlink(missing_ok=True)

@@ -45,6 +45,10 @@ class TaskCheckpoint(L.Callback):
         self.path, self.every = Path(path), every
         self._trainer: L.Trainer | None = None
         self._pending: dict | None = None
+        self._started = time.perf_counter()
+        self.seconds_before = 0.0
+        """The task's seconds in the processes before this one, up to the partial checkpoint
+        it resumed (0 for a task that starts here): a resumed task's wall time counts them."""
 
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         self._trainer = trainer
@@ -83,10 +87,12 @@ class TaskCheckpoint(L.Callback):
             "np_rest": [int(pos), int(has_gauss), float(cached)],
             "python": [version, list(internal), gauss],
             "sampler": [g.bit_generator.state for g in generators],
+            "seconds": self.seconds_before + time.perf_counter() - self._started,
         }
 
     def load_state_dict(self, state_dict: dict) -> None:
         self._pending = state_dict
+        self.seconds_before = float(state_dict.get("seconds", 0.0))  # 0: a file that has none
 
 
 def differing_keys(stored: dict, current: dict) -> list[str]:

@@ -114,10 +114,17 @@ def test_killed_inside_a_task_resumes_there_and_ends_identical(tiny_umaze, tmp_p
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     assert not (stream_dir(killed) / "results.json").exists()
+    saved = torch.load(stream_dir(killed) / "task_02.partial.ckpt", weights_only=True)
+    before = saved["callbacks"]["TaskCheckpoint"]["seconds"]  # task 2's time in the killed child
+    assert before > 0
 
     capsys.readouterr()
+    started = time.perf_counter()
     resumed = fit_tiny_stream("ftn", killed, stream, *extra)[0]
     assert "resuming task 2 from task_02.partial.ckpt" in capsys.readouterr().out
+    # its wall time counts the killed child's part as well as this process's
+    assert before < resumed["wall_time_s"][1] <= before + time.perf_counter() - started
+    assert resumed["phase_time_s"][1]["training"] > before
     for key in ("R", "PER", "BWT", "stored_bytes"):
         assert resumed[key] == whole[key], key
     a = torch.load(stream_dir(tmp_path / "whole") / "task_02.ckpt", weights_only=True)
