@@ -46,6 +46,7 @@ class TaskCheckpoint(L.Callback):
         self._trainer: L.Trainer | None = None
         self._pending: dict | None = None
         self._started = time.perf_counter()
+        self._saving = False  # True while the partial checkpoint is written
         self.seconds_before = 0.0
         """The task's seconds in the processes before this one, up to the partial checkpoint
         it resumed (0 for a task that starts here): a resumed task's wall time counts them."""
@@ -56,8 +57,13 @@ class TaskCheckpoint(L.Callback):
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
         step = trainer.global_step
         if self.every > 0 and step % self.every == 0 and 0 < step < trainer.max_steps:
-            # the full training state
-            atomic_save(self.path, lambda tmp: trainer.save_checkpoint(tmp, weights_only=False))
+            # the full training state, and the seconds so far (only here: a finished task's
+            # checkpoint stays a function of the run's settings alone)
+            self._saving = True
+            try:
+                atomic_save(self.path, lambda tmp: trainer.save_checkpoint(tmp, weights_only=False))
+            finally:
+                self._saving = False
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if self._pending is None:
@@ -81,14 +87,16 @@ class TaskCheckpoint(L.Callback):
         kind, keys, pos, has_gauss, cached = np.random.get_state()
         version, internal, gauss = random.getstate()
         generators = _sampler_generators(self._trainer) if self._trainer is not None else []
-        return {
+        state = {
             "torch": torch.get_rng_state(),
             "numpy": torch.from_numpy(keys.astype(np.int64)),
             "np_rest": [int(pos), int(has_gauss), float(cached)],
             "python": [version, list(internal), gauss],
             "sampler": [g.bit_generator.state for g in generators],
-            "seconds": self.seconds_before + time.perf_counter() - self._started,
         }
+        if self._saving:
+            state["seconds"] = self.seconds_before + time.perf_counter() - self._started
+        return state
 
     def load_state_dict(self, state_dict: dict) -> None:
         self._pending = state_dict

@@ -13,7 +13,6 @@ launch a benchmark whose runs record the checkout's commit.
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 from collections.abc import Sequence
 from contextlib import suppress
@@ -134,14 +133,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> None:
-    # the reports build modules (PNN's growth) through Lightning, whose set-up notices
-    # (accelerators, tips, seeds) say nothing about a report
-    for name in (
-        "lightning.pytorch.utilities.rank_zero",
-        "lightning.fabric.utilities.rank_zero",
-        "lightning.fabric.utilities.seed",
-    ):
-        logging.getLogger(name).setLevel(logging.WARNING)
+    from hispo_pl.console import lightning_notices_held
+
+    with lightning_notices_held():  # the reports build modules (PNN's growth) through Lightning
+        _run(args)
+
+
+def _run(args: argparse.Namespace) -> None:
     if args.verb == "rebuild":
         for name in GRIDS:
             grid_reports(name, RESULTS)

@@ -122,7 +122,8 @@ def test_lightnings_notice_of_a_reached_budget_is_not_printed(caplog):
     from hispo_pl.cli import _quiet_known_warnings
 
     _quiet_known_warnings()
-    with caplog.at_level(logging.INFO):
+    # the logger's own level too: a script another test ran in this process may have set it
+    with caplog.at_level(logging.INFO, logger="lightning.pytorch.utilities.rank_zero"):
         rank_zero_info("`Trainer.fit` stopped: `max_steps=3000` reached.")
         rank_zero_info("`Trainer.fit` stopped: No training batches.")
     messages = [r.getMessage() for r in caplog.records]
