@@ -13,6 +13,7 @@ launch a benchmark whose runs record the checkout's commit.
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from collections.abc import Sequence
 from contextlib import suppress
@@ -85,12 +86,18 @@ def benchmark(argv: Sequence[str]) -> int:
     """``hispo-pl benchmark ARGS``, each launched run's ``run.json`` recording the checkout's
     commit; a grid's reports then rewritten as this repository commits them."""
     from hispo_pl.benchmark import command_line, plan
+    from hispo_pl.stopping import terminate_as_interrupt
 
     from .provenance import checkout_commit
 
     plan.CODE_RECORDERS.append(checkout_commit)
-    try:
-        code = command_line.main(list(argv))
+    received: list[int] = []
+    try:  # SIGTERM stops the runs as Ctrl-C does (their rerun resumes), as hispo-pl's does
+        with terminate_as_interrupt() as received:
+            code = command_line.main(list(argv))
+    except KeyboardInterrupt:
+        print("\npython -m lab benchmark: interrupted", file=sys.stderr)
+        return 128 + (received[0] if received else signal.SIGINT)
     finally:  # for this launch only: the product itself records no commit
         plan.CODE_RECORDERS.remove(checkout_commit)
     args, _ = command_line.build_parser().parse_known_args(list(argv))

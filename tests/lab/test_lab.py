@@ -194,3 +194,25 @@ def test_a_launch_records_the_checkout_commit_only_through_the_lab(monkeypatch):
     assert "uncommitted changes" in plan.provenance_problem(
         LaunchRecord(commit="a" * 40 + "+dirty")
     )
+
+
+def test_a_terminated_benchmark_stops_as_an_interrupt(monkeypatch, capsys):
+    """SIGTERM reaches the benchmark's runner as Ctrl-C does (it then terminates its runs),
+    not as the default death that would leave them running."""
+    import os
+    import signal
+    import time
+
+    from hispo_pl.benchmark import command_line
+    from lab.__main__ import benchmark
+
+    def terminated(argv):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the signal arrives before this ends
+        raise AssertionError("SIGTERM did not stop the benchmark")
+
+    monkeypatch.setattr(command_line, "main", terminated)
+    before = signal.getsignal(signal.SIGTERM)
+    assert benchmark(["--grid", "paper", "--dry-run"]) == 128 + signal.SIGTERM
+    assert "python -m lab benchmark: interrupted" in capsys.readouterr().err
+    assert signal.getsignal(signal.SIGTERM) == before  # restored afterwards
