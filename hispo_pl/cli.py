@@ -60,7 +60,6 @@ def _quiet_known_warnings() -> None:
         r".*does not have many workers.*",
         r".*treespec.*LeafSpec.*",
         r".*litlogger.*",
-        r".*LightningCLI's args parameter.*",
     ):
         warnings.filterwarnings("ignore", message=pattern)
     for name in ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.rank_zero"):

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import torch
@@ -302,17 +303,19 @@ def check_fit_args(argv: list[str]) -> str | None:
 
 def run_lightning_cli(args: list[str] | None = None, run: bool = True) -> HispoCLI:
     """``hispo-pl fit``'s LightningCLI; ``run=False`` parses, checks and instantiates only."""
-    return HispoCLI(
-        model_class=GoalConditionedBC,
-        datamodule_class=TaskDataModule,
-        subclass_mode_model=True,
-        args=args,
-        trainer_defaults={"accelerator": "cpu", "devices": 1},
-        save_config_callback=SaveConfig,
-        save_config_kwargs={"overwrite": True},
-        parser_kwargs={"allow_abbrev": False},  # --trainer.max_step is a typo, not max_steps
-        run=run,
-    )
+    with warnings.catch_warnings():  # ``args``, not the process's command line, is the config
+        warnings.filterwarnings("ignore", message=".*LightningCLI's args parameter.*")
+        return HispoCLI(
+            model_class=GoalConditionedBC,
+            datamodule_class=TaskDataModule,
+            subclass_mode_model=True,
+            args=args,
+            trainer_defaults={"accelerator": "cpu", "devices": 1},
+            save_config_callback=SaveConfig,
+            save_config_kwargs={"overwrite": True},
+            parser_kwargs={"allow_abbrev": False},  # --trainer.max_step is a typo, not max_steps
+            run=run,
+        )
 
 
 def run_fit(argv: list[str]) -> int:

@@ -20,15 +20,11 @@ from ..metrics import memory_ratio, module_bytes
 def module_for(configs: Sequence[str | Path], *overrides: str):
     """The method module ``hispo-pl fit --config ...`` would train, sized by the stream's data
     (parsed and instantiated, nothing trained or read beyond the configs)."""
-    import warnings
-
     from ..fit import run_lightning_cli
 
     args = [a for config in configs for a in ("--config", str(config))]
     args += ["--trainer.logger", "false", *overrides]
-    with warnings.catch_warnings():  # these args, not the caller's command line, are the config
-        warnings.filterwarnings("ignore", message=".*LightningCLI's args parameter.*")
-        return run_lightning_cli(args, run=False).model
+    return run_lightning_cli(args, run=False).model
 
 
 def structural_memory(module, n_tasks: int) -> list[float]:
