@@ -37,11 +37,19 @@ class Stats:
     fwt: float
     mem: float
     runs: int
+    fwt_seeds: int | None = None  # seeds with an FWT on every stream (None: all of them)
 
     @property
     def seeds(self) -> int:
         """The seeds behind the IQM: those every stream of the claim has."""
         return len(self.scores)
+
+    def seeds_of(self, what: Sequence[str] = ("per",)) -> int:
+        """The seeds behind the figures ``what``: FWT only rests on the seeds that have a
+        from-scratch run of their own to be measured against."""
+        if "fwt" in what and self.fwt_seeds is not None:
+            return min(self.seeds, self.fwt_seeds)
+        return self.seeds
 
     @cached_property
     def per_iqm(self) -> tuple[float, float, float]:
@@ -84,11 +92,15 @@ def _method_stats(committed: Committed, streams: Sequence[str], method: str) -> 
     scores = tuple(tuple(100 * by_stream[s][seed]["PER"] for s in streams) for seed in seeds)
     every = [m for runs in by_stream.values() for m in runs.values()]
 
-    def mean(name: str, scale: float = 100.0) -> float:
-        values = [scale * m[name] for m in every if m.get(name) is not None]
+    def mean(name: str, scale: float = 100.0, runs=every) -> float:
+        values = [scale * m[name] for m in runs if m.get(name) is not None]
         return float(np.mean(values)) if values else float("nan")
 
-    return Stats(scores, mean("PER"), mean("BWT"), mean("FWT"), mean("MEM", 1.0), len(every))
+    measured = [
+        seed for seed in seeds if all(by_stream[s][seed].get("FWT") is not None for s in streams)
+    ]
+    fwt = mean("FWT", runs=[by_stream[s][seed] for seed in measured for s in streams])
+    return Stats(scores, mean("PER"), mean("BWT"), fwt, mean("MEM", 1.0), len(every), len(measured))
 
 
 # --- the verdict rules: pure -------------------------------------------------------------------
@@ -108,30 +120,31 @@ def verdict(ok: bool) -> str:
     return "holds" if ok else "does not hold"
 
 
-def judged(stats: Mapping[str, Stats], ok: bool) -> str:
+def judged(stats: Mapping[str, Stats], ok: bool, what: Sequence[str] = ("per",)) -> str:
     """The verdict ``ok`` gives on ``stats``, marked provisional (with the seeds it rests on)
-    where a method has fewer than :data:`MIN_SEEDS` seeds on the claim's streams.
+    where a method has fewer than :data:`MIN_SEEDS` seeds behind the figures ``what`` on the
+    claim's streams.
 
     Example:
         >>> one = Stats(((90.0, 91.0),), 90.5, 0.0, 0.0, 1.0, 2)
         >>> judged({"hispo": one}, True)
         'provisionally holds (1 seed of 3)'
     """
-    fewest = min(s.seeds for s in stats.values())
+    fewest = min(s.seeds_of(what) for s in stats.values())
     if fewest >= MIN_SEEDS:
         return verdict(ok)
     return f"provisionally {verdict(ok)} ({fewest} seed{'s' * (fewest > 1)} of {MIN_SEEDS})"
 
 
-def seeds_text(stats: Mapping[str, Stats]) -> str:
-    """How many seeds the figures rest on: once when every method has the same count.
+def seeds_text(stats: Mapping[str, Stats], what: Sequence[str] = ("per",)) -> str:
+    """How many seeds the figures ``what`` rest on: once when every method has the same count.
 
     Example:
         >>> one = Stats(((90.0,),), 90.0, 0.0, 0.0, 1.0, 1)
         >>> seeds_text({"a": one, "b": one})
         '1 seed each'
     """
-    counts = {m: s.seeds for m, s in stats.items()}
+    counts = {m: s.seeds_of(what) for m, s in stats.items()}
     if len(set(counts.values())) == 1:
         n = next(iter(counts.values()))
         return f"{n} seed{'s' * (n > 1)} each"
@@ -157,7 +170,7 @@ def _stats(committed: Committed, family: str, methods: Sequence[str]) -> dict[st
 
 def _figures(stats: dict[str, Stats], what: Sequence[str] = ("per", "mem")) -> str:
     figures = "; ".join(f"{m}: " + ", ".join(s.text(w) for w in what) for m, s in stats.items())
-    return f"{figures} ({seeds_text(stats)})"
+    return f"{figures} ({seeds_text(stats, what)})"
 
 
 def rule_on_family(
@@ -170,7 +183,7 @@ def rule_on_family(
 
     def test(committed: Committed):
         stats = _stats(committed, family, methods)
-        return None if stats is None else (_figures(stats, what), judged(stats, ok(stats)))
+        return None if stats is None else (_figures(stats, what), judged(stats, ok(stats), what))
 
     return test
 
@@ -188,7 +201,7 @@ def rule_on_streams(
         found = {m: method_stats(committed, streams, m) for m in methods}
         if not streams or any(s is None for s in found.values()):
             return None
-        return _figures(found, what), judged(found, ok(found))
+        return _figures(found, what), judged(found, ok(found), what)
 
     return test
 

@@ -102,3 +102,24 @@ def test_transfer_is_judged_where_its_own_methods_ran_without_the_rest_of_table_
 def test_one_seed_shows_no_interval():
     one = rules.Stats(((97.0, 95.0),), 96.0, 0.0, 0.0, 4.0, 2)
     assert one.text() == "PER 96.0"
+
+
+def test_transfer_rests_only_on_the_seeds_with_a_from_scratch_run():
+    """A seed whose from-scratch run is not committed yet has no FWT: the transfer claim
+    counts the seeds that have one, and its mean is theirs."""
+    runs = _Runs({"pointmaze-1": {"ft1": [0.5], "ftn": [0.98], "hispo": [0.99, 0.97]}})
+    measured = runs.measured
+
+    def with_fwt(stream):
+        rows = measured(stream)
+        for run, metrics, _ in rows:
+            metrics["FWT"] = {"ft1": 0.03, "ftn": 0.04}.get(run.method, [-0.02, None][run.seed])
+        return rows
+
+    runs.measured = with_fwt
+    claim = next(c for c in claims.CLAIMS if c.text.startswith("FT1 and FTN transfer"))
+    figures, verdict = claim.test(runs)
+    assert figures == "ft1: FWT 3.0; ftn: FWT 4.0; hispo: FWT -2.0 (1 seed each)"
+    assert verdict == "provisionally holds (1 seed of 3)"
+    per = next(c for c in claims.CLAIMS if c.text.startswith("PointMaze: FTN and SCN"))
+    assert per.test(_Runs({"pointmaze-1": {"hispo": [0.99, 0.97]}})) is None  # no SCN, FTN
