@@ -39,11 +39,10 @@ if __name__ == "__main__" and _working_folder_first():
     del sys.path[0]
 
 import errno  # noqa: E402
-import signal  # noqa: E402
 import warnings  # noqa: E402
 
-from .errors import Interrupted, UserError, resumable  # noqa: E402
-from .stopping import interrupt_behind, terminate_as_interrupt  # noqa: E402
+from .errors import UserError, resumable  # noqa: E402
+from .stopping import stop_exit_code, terminate_as_interrupt  # noqa: E402
 
 
 def _quiet_known_warnings() -> None:
@@ -107,15 +106,11 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"{prog}: error: {said}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt as err:
-        hint = str(err) if isinstance(err, Interrupted) else "interrupted"
-        print(f"\n{prog}: {hint}", file=sys.stderr)
-        return 128 + (received[0] if received else signal.SIGINT)
-    except Exception as err:
-        if not interrupt_behind(err):  # a stop that an import wrapped; anything else: a bug
+    except (KeyboardInterrupt, Exception) as err:
+        stopped = stop_exit_code(prog, err, received)
+        if stopped is None:  # not a stop: a bug, with its traceback
             raise
-        print(f"\n{prog}: interrupted", file=sys.stderr)
-        return 128 + (received[0] if received else signal.SIGINT)
+        return stopped
 
 
 _MACHINE_ERRORS = {

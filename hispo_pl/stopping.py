@@ -17,6 +17,8 @@ import signal
 import sys
 import threading
 
+from .errors import Interrupted
+
 _received: list[int] = []  # the signals asking the command to stop, while it runs
 _running = threading.Lock()  # held while the handler is swapped back: no delivery then
 AGAIN_AFTER_S = 0.01  # a dropped stop is delivered again after this long
@@ -101,3 +103,15 @@ def interrupt_behind(err: BaseException) -> bool:
         seen.add(id(link))
         link = link.__cause__ or link.__context__
     return False
+
+
+def stop_exit_code(prog: str, err: BaseException, received: list[int]) -> int | None:
+    """The exit code of a command that ``err`` stopped (Ctrl-C, a signal
+    :func:`terminate_as_interrupt` put in ``received``, or a stop an import wrapped: see
+    :func:`interrupt_behind`), after saying so on stderr as ``prog`` (with what was kept, where
+    the stop says it); None when ``err`` is not a stop."""
+    if not interrupt_behind(err):
+        return None
+    hint = str(err) if isinstance(err, Interrupted) else "interrupted"
+    print(f"\n{prog}: {hint}", file=sys.stderr)
+    return 128 + (received[0] if received else signal.SIGINT)

@@ -13,7 +13,6 @@ launch a benchmark whose runs record the checkout's commit.
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 from collections.abc import Sequence
 from contextlib import suppress
@@ -86,7 +85,7 @@ def benchmark(argv: Sequence[str]) -> int:
     """``hispo-pl benchmark ARGS``, each launched run's ``run.json`` recording the checkout's
     commit; a grid's reports then rewritten as this repository commits them."""
     from hispo_pl.benchmark import command_line, plan
-    from hispo_pl.stopping import terminate_as_interrupt
+    from hispo_pl.stopping import stop_exit_code, terminate_as_interrupt
 
     from .provenance import checkout_commit
 
@@ -95,9 +94,11 @@ def benchmark(argv: Sequence[str]) -> int:
     try:  # SIGTERM stops the runs as Ctrl-C does (their rerun resumes), as hispo-pl's does
         with terminate_as_interrupt() as received:
             code = command_line.main(list(argv))
-    except KeyboardInterrupt:
-        print("\npython -m lab benchmark: interrupted", file=sys.stderr)
-        return 128 + (received[0] if received else signal.SIGINT)
+    except (KeyboardInterrupt, Exception) as err:
+        stopped = stop_exit_code("python -m lab benchmark", err, received)
+        if stopped is None:
+            raise
+        return stopped
     finally:  # for this launch only: the product itself records no commit
         plan.CODE_RECORDERS.remove(checkout_commit)
     args, _ = command_line.build_parser().parse_known_args(list(argv))

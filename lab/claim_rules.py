@@ -48,7 +48,7 @@ class Stats:
         """The seeds behind the figures ``what``: FWT only rests on the seeds that have a
         from-scratch run of their own to be measured against."""
         if "fwt" in what and self.fwt_seeds is not None:
-            return min(self.seeds, self.fwt_seeds)
+            return self.fwt_seeds
         return self.seeds
 
     @cached_property
