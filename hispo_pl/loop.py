@@ -69,19 +69,20 @@ def _event_writer_errors_said_once():
 
 def fit_interruptibly(trainer: L.Trainer, module: L.LightningModule, datamodule, **kwargs) -> None:
     """``trainer.fit``, where Ctrl-C raises ``KeyboardInterrupt`` again: Lightning turns it into
-    ``sys.exit(1)`` after its own shutdown and leaves SIGINT ignored. The files Lightning
-    writes by name stay in the logger's folder (:func:`~hispo_pl.io.files_in_log_dir`), an
-    error of the file system without a path (TensorBoard's writer gives none) names that
-    folder, and a stop that an import wrapped in another error is the stop again
-    (:func:`~hispo_pl.stopping.interrupt_behind`)."""
+    ``sys.exit(1)`` after its own shutdown and leaves SIGINT ignored (the handler before it is
+    put back). The files Lightning writes by name stay in the logger's folder
+    (:func:`~hispo_pl.io.files_in_log_dir`), an error of the file system without a path
+    (TensorBoard's writer gives none) names that folder, and a stop that an import wrapped in
+    another error is the stop again (:func:`~hispo_pl.stopping.interrupt_behind`)."""
     files_in_log_dir(trainer)
+    ctrl_c = signal.getsignal(signal.SIGINT)  # Python's, or the command's (hispo_pl.stopping)
     try:
         with _event_writer_errors_said_once():
             trainer.fit(module, datamodule=datamodule, **kwargs)
     except SystemExit:
         if not trainer.interrupted:
             raise
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGINT, ctrl_c)
         raise KeyboardInterrupt from None
     except Exception as err:
         if interrupt_behind(err):  # a stop that an import wrapped in its own error

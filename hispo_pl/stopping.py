@@ -1,5 +1,5 @@
-"""Stopping on a signal: SIGTERM (``kill``, a scheduler's stop, the benchmark stopping its
-runs) ends a command the way Ctrl-C does, and the request stays until the command stops.
+"""Stopping on a signal: Ctrl-C and SIGTERM (``kill``, a scheduler's stop, the benchmark
+stopping its runs) end a command the same way, and the request stays until it stops.
 
 The signal raises ``KeyboardInterrupt`` wherever Python is; raised while Python runs a
 finaliser (an object's ``__del__``, a weakref callback), Python drops it and would print
@@ -19,6 +19,7 @@ import threading
 
 from .errors import Interrupted
 
+STOPS = (signal.SIGINT, signal.SIGTERM)  # Ctrl-C, and kill's or a scheduler's stop
 _received: list[int] = []  # the signals asking the command to stop, while it runs
 _running = threading.Lock()  # held while the handler is swapped back: no delivery then
 AGAIN_AFTER_S = 0.01  # a dropped stop is delivered again after this long
@@ -40,11 +41,11 @@ def _deliver_again() -> None:
 
 @contextlib.contextmanager
 def terminate_as_interrupt():
-    """SIGTERM raises ``KeyboardInterrupt`` while the command runs, and is remembered
-    (:func:`stop_requested`): a stream keeps what it finished and says how to resume, a
-    benchmark stops its runs. Lightning alone only notes a SIGTERM that arrives during a
-    training step, and a stream's next task forgets it. Yields the list the signal's number is
-    put in."""
+    """SIGTERM, like Ctrl-C, raises ``KeyboardInterrupt`` while the command runs, and either
+    is remembered (:func:`stop_requested`): a stream keeps what it finished and says how to
+    resume, a benchmark stops its runs. Lightning alone only notes a SIGTERM that arrives
+    during a training step, and a stream's next task forgets it; Python's own Ctrl-C is lost
+    when it lands in a finaliser. Yields the list the signal's number is put in."""
 
     received: list[int] = []  # the command's, kept after it stops
 
@@ -60,7 +61,7 @@ def terminate_as_interrupt():
         hook(unraisable)
 
     try:
-        previous = signal.signal(signal.SIGTERM, interrupt)
+        previous = {sig: signal.signal(sig, interrupt) for sig in STOPS}
     except ValueError:  # not the main thread: leave signals alone
         yield received
         return
@@ -69,7 +70,8 @@ def terminate_as_interrupt():
         yield received
     finally:
         with _running:
-            signal.signal(signal.SIGTERM, previous)
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
             sys.unraisablehook = hook
             _received.clear()
 

@@ -352,7 +352,7 @@ _run = RolloutEvaluator.run
 class _Finalised:
     def __del__(self):
         pathlib.Path("{marker}").touch()
-        time.sleep(5)  # the SIGTERM arrives here: Python ignores the interrupt it raises
+        time.sleep(5)  # the stop arrives here: Python ignores the interrupt it raises
 def _run_with_a_finaliser(self, *args, **kwargs):
     _Finalised()  # collected at once: its __del__ runs inside the task-end rollouts
     return _run(self, *args, **kwargs)
@@ -361,19 +361,20 @@ RolloutEvaluator.run = _run_with_a_finaliser
 
 
 @pytest.mark.e2e
-def test_a_kill_swallowed_by_a_finaliser_still_stops_the_stream(tiny_umaze, tmp_path):
-    """A SIGTERM's KeyboardInterrupt raised inside ``__del__`` is dropped by Python, which
-    would print "Exception ignored"; the stop request stays, is not printed as ignored, and
-    stops the run (Lightning notes a SIGTERM only during its training steps, and the next task
-    would forget it). test_reliability_signals.py sends it at random moments."""
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_swallowed_by_a_finaliser_still_stops_the_stream(tiny_umaze, tmp_path, sig):
+    """A Ctrl-C's or a SIGTERM's KeyboardInterrupt raised inside ``__del__`` is dropped by
+    Python, which would print "Exception ignored"; the stop request stays, is not printed as
+    ignored, and stops the run (Lightning notes a SIGTERM only during its training steps, and
+    the next task would forget it). test_reliability_signals.py sends it at random moments."""
     marker = tmp_path / "finalising"
     args = tiny_stream_args("ftn", tmp_path, TINY_STREAM, "--trainer.max_steps", "2")
     proc = spawn(cli_source(args, SWALLOWED.format(marker=marker)))
     wait_for(marker, proc)
-    proc.send_signal(signal.SIGTERM)
+    proc.send_signal(sig)
     out, err = proc.communicate(timeout=120)
     assert "Exception ignored" not in err and "Traceback" not in err
-    assert proc.returncode == 128 + signal.SIGTERM, err[-3000:]
+    assert proc.returncode == 128 + sig, err[-3000:]
     assert "interrupted during task 1 of 2" in err and "Rerun the same command to resume" in err
     assert not (stream_dir(tmp_path) / "results.json").exists()
 
