@@ -67,11 +67,20 @@ def machine_text(machine: dict | None) -> str:
     return ", ".join(p for p in parts if p)
 
 
+def short_commit(commit: str | None) -> str:
+    """A commit's first 7 digits, ``+dirty`` kept; "not recorded" for none."""
+    if not commit:
+        return "not recorded"
+    return f"{commit[:7]}{'+dirty' if commit.endswith('+dirty') else ''}"
+
+
 def commit_text(record: LaunchRecord) -> str:
-    """The commit a run was made on (short, ``+dirty`` kept), else the one that committed it."""
+    """The commit a run was made on (short, ``+dirty`` kept; a resumed run's earlier ones
+    after it), else the one that committed it."""
     if record.commit:
-        made = str(record.commit)
-        return f"{made[:7]}{'+dirty' if made.endswith('+dirty') else ''}"
+        made = short_commit(record.commit)
+        earlier = [short_commit(c) for c in record.earlier_commits or []]
+        return f"{made} (resumed; earlier: {', '.join(earlier)})" if earlier else made
     if record.committed_in:
         return f"{record.committed_in} (committed)"
     return "not recorded"

@@ -330,12 +330,30 @@ def provenance_problem(record: LaunchRecord) -> str | None:
     with uncommitted changes. A launch that records no commit at all has nothing to say."""
     if not record.holds("commit"):
         return None
-    commit = record.commit
-    if not commit:
-        return "no commit recorded (made outside a git checkout, or before runs recorded one)"
-    if str(commit).endswith("+dirty"):
-        return f"made from {commit[:12]} with uncommitted changes: no commit holds its code"
+    for commit in [*(record.earlier_commits or []), record.commit]:
+        if not commit:
+            return "no commit recorded (made outside a git checkout, or before runs recorded one)"
+        if str(commit).endswith("+dirty"):
+            return f"made from {commit[:12]} with uncommitted changes: no commit holds its code"
     return None
+
+
+def launch_commits(old: LaunchRecord) -> list[str | None]:
+    """The commits a run was launched on so far, oldest first, from its last ``run.json``
+    (one entry per change of commit): what a resumed run's new record keeps as
+    ``earlier_commits``, so a run that spans checkouts names every one.
+
+    Example:
+        >>> launch_commits(LaunchRecord.from_json({"commit": "b", "earlier_commits": ["a"]}))
+        ['a', 'b']
+        >>> launch_commits(LaunchRecord.from_json({"commit": "a", "earlier_commits": ["a"]}))
+        ['a']
+    """
+    commits: list[str | None] = []
+    for commit in [*(old.earlier_commits or []), old.commit]:
+        if not commits or commits[-1] != commit:
+            commits.append(commit)
+    return commits
 
 
 def warn_provenance(record: LaunchRecord, what: str) -> bool:
@@ -388,6 +406,8 @@ def pending_runs(
         if old is not None:  # a tolerance tree's run keeps the record of its branching
             branched = {"branched_from": old.branched_from, "branched_tasks": old.branched_tasks}
             record = record.merged({k: v for k, v in branched.items() if old.holds(k)})
+            if run_dir.progress_file.exists() and old.holds("commit") and record.holds("commit"):
+                record = record.merged({"earlier_commits": launch_commits(old)})
         run_dir.write_run_record(record)
         todo.append(run)
     return todo

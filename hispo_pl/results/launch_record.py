@@ -30,7 +30,8 @@ class LaunchRecord:
     task, the fit's arguments and whole command), where (hispo-pl's ``version``, the
     ``machine``, the ``commit`` a repository's recorder adds; ``committed_in`` for runs
     launched before launches recorded one), what it was made from instead of trained
-    (``derived_from``; ``branched_from`` and the ``branched_tasks`` it copied) and how its
+    (``derived_from``; ``branched_from`` and the ``branched_tasks`` it copied), the
+    ``earlier_commits`` a resumed run also trained under (oldest first), and how its
     launch ended (``status``, for a run that left no results). Empty for a run the benchmark did
     not launch.
 
@@ -53,6 +54,7 @@ class LaunchRecord:
     derived_from: str | None = None
     branched_from: str | None = None
     branched_tasks: int | None = None
+    earlier_commits: list[str | None] | None = None
     status: str | None = None
     extra: dict = field(default_factory=dict)
     order: tuple[str, ...] = field(default=(), compare=False, repr=False)

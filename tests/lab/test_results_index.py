@@ -10,7 +10,8 @@ from helpers import ROOT, write_run_files
 
 from hispo_pl.benchmark import PlannedRun, export_runs, plan
 from hispo_pl.results import LaunchRecord
-from lab.manifest import MANIFEST, REFERENCE_FOLDERS, manifest_markdown
+from hispo_pl.rundir import RunDir
+from lab.manifest import MANIFEST, REFERENCE_FOLDERS, commit_text, manifest_markdown
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -51,3 +52,26 @@ def test_a_run_without_a_clean_commit_is_named_loudly_at_launch_and_export(tmp_p
     planned = PlannedRun("scn", 0, tmp_path / "new", ("-m", "hispo_pl.cli", "fit"))
     plan.pending_runs([planned], "pointmaze-1", LaunchRecord.from_json({"commit": None}))
     assert "WARNING: launching 1 run(s): no commit recorded" in capsys.readouterr().err
+
+
+def test_a_resumed_run_names_every_commit_it_trained_under(tmp_path):
+    """A run that spans checkouts (interrupted on one commit, resumed on another) keeps the
+    earlier launches' commits in its run.json, its manifest row names them, and an earlier
+    dirty launch is a provenance problem as the last one would be."""
+    planned = PlannedRun("scn", 0, tmp_path / "run", ("-m", "hispo_pl.cli", "fit"))
+    first, second = LaunchRecord(commit="a" * 40), LaunchRecord(commit="b" * 40)
+    plan.pending_runs([planned], "pointmaze-1", first)
+    plan.pending_runs([planned], "pointmaze-1", second)  # nothing trained yet: a fresh start
+    assert RunDir(planned.run_dir).read_run_record().earlier_commits is None
+    RunDir(planned.run_dir).progress_file.write_text("{}")  # the first launch trained a part
+    plan.pending_runs([planned], "pointmaze-1", second)
+    plan.pending_runs([planned], "pointmaze-1", first)
+    record = RunDir(planned.run_dir).read_run_record()
+    assert (record.commit, record.earlier_commits) == ("a" * 40, ["b" * 40])
+    plan.pending_runs([planned], "pointmaze-1", second)
+    record = RunDir(planned.run_dir).read_run_record()
+    assert (record.commit, record.earlier_commits) == ("b" * 40, ["b" * 40, "a" * 40])
+    assert commit_text(record) == "bbbbbbb (resumed; earlier: bbbbbbb, aaaaaaa)"
+    assert plan.provenance_problem(record) is None
+    dirty = record.replace(earlier_commits=["c" * 40 + "+dirty"])
+    assert "cccccccccccc with uncommitted changes" in plan.provenance_problem(dirty)
