@@ -42,7 +42,7 @@ import errno  # noqa: E402
 import warnings  # noqa: E402
 
 from .errors import UserError, resumable  # noqa: E402
-from .stopping import stop_exit_code, terminate_as_interrupt  # noqa: E402
+from .stopping import signals_stop_the_command, stop_exit_code  # noqa: E402
 
 
 def _quiet_known_warnings() -> None:
@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     prog = "hispo-pl" + (f" {argv[0]}" if argv and argv[0] in SUBCOMMANDS else "")
     received: list[int] = []  # the signal that stopped the command, if one did
     try:
-        with terminate_as_interrupt() as received:
+        with signals_stop_the_command() as received:
             code = _dispatch(argv)
             sys.stdout.flush()  # a pipe closed early shows here, not as an error at exit
             return code

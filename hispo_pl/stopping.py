@@ -40,7 +40,7 @@ def _deliver_again() -> None:
 
 
 @contextlib.contextmanager
-def terminate_as_interrupt():
+def signals_stop_the_command():
     """SIGTERM, like Ctrl-C, raises ``KeyboardInterrupt`` while the command runs, and either
     is remembered (:func:`stop_requested`): a stream keeps what it finished and says how to
     resume, a benchmark stops its runs. Lightning alone only notes a SIGTERM that arrives
@@ -109,7 +109,7 @@ def interrupt_behind(err: BaseException) -> bool:
 
 def stop_exit_code(prog: str, err: BaseException, received: list[int]) -> int | None:
     """The exit code of a command that ``err`` stopped (Ctrl-C, a signal
-    :func:`terminate_as_interrupt` put in ``received``, or a stop an import wrapped: see
+    :func:`signals_stop_the_command` put in ``received``, or a stop an import wrapped: see
     :func:`interrupt_behind`), after saying so on stderr as ``prog`` (with what was kept, where
     the stop says it); None when ``err`` is not a stop."""
     if not interrupt_behind(err):

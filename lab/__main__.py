@@ -85,14 +85,14 @@ def benchmark(argv: Sequence[str]) -> int:
     """``hispo-pl benchmark ARGS``, each launched run's ``run.json`` recording the checkout's
     commit; a grid's reports then rewritten as this repository commits them."""
     from hispo_pl.benchmark import command_line, plan
-    from hispo_pl.stopping import stop_exit_code, terminate_as_interrupt
+    from hispo_pl.stopping import signals_stop_the_command, stop_exit_code
 
     from .provenance import checkout_commit
 
     plan.CODE_RECORDERS.append(checkout_commit)
     received: list[int] = []
     try:  # SIGTERM stops the runs as Ctrl-C does (their rerun resumes), as hispo-pl's does
-        with terminate_as_interrupt() as received:
+        with signals_stop_the_command() as received:
             code = command_line.main(list(argv))
     except (KeyboardInterrupt, Exception) as err:
         stopped = stop_exit_code("python -m lab benchmark", err, received)

@@ -215,7 +215,7 @@ def test_a_stop_an_import_wrapped_in_its_own_error_stops_the_fit(tiny_umaze):
     from hispo_pl.data.datamodule import TaskDataModule
     from hispo_pl.loop import fit_interruptibly
     from hispo_pl.modules import HBC
-    from hispo_pl.stopping import terminate_as_interrupt
+    from hispo_pl.stopping import signals_stop_the_command
 
     class StopInsideAnImport(L.Callback):
         def on_train_start(self, trainer, pl_module):
@@ -228,7 +228,7 @@ def test_a_stop_an_import_wrapped_in_its_own_error_stops_the_fit(tiny_umaze):
     module = HBC(4, 2, backbone=BackboneConfig(high_hidden=8, low_hidden=16))
     data = TaskDataModule(task="pointmaze-umaze-N[6]", batch_size=16, steps_per_epoch=2)
     trainer = quiet_trainer(4, callbacks=[StopInsideAnImport()])
-    with terminate_as_interrupt() as received, pytest.raises(KeyboardInterrupt) as stopped:
+    with signals_stop_the_command() as received, pytest.raises(KeyboardInterrupt) as stopped:
         fit_interruptibly(trainer, module, data)
     assert received == [signal.SIGTERM] and stopped.value.__cause__ is None
 
