@@ -24,31 +24,41 @@ def read_checkpoint(path: str | Path) -> dict:
     """
     import pickle
     import re
+    import warnings
 
     try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():
+            # torch names the odd "protocol" of bytes that are no pickle before refusing them
+            warnings.filterwarnings("ignore", message="Detected pickle protocol")
+            checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+    except OSError as err:  # the file cannot be read at all
+        raise CheckpointError(_not_a_checkpoint(path, first_line(err))) from None
     except pickle.UnpicklingError as err:
         # a class or function named by the file (GLOBAL), which weights_only refuses to load;
         # any other refusal of the unpickler is bytes that are no pickle at all
-        found = re.search(r"GLOBAL ([\w.]+)", str(err))
+        found = re.search(r"GLOBAL ([A-Za-z_][\w.]*) (?:was not an allowed|whose module)", str(err))
         if found is None:
-            raise CheckpointError(_not_a_checkpoint(path, "its bytes are not a pickle")) from None
+            raise CheckpointError(_not_a_checkpoint(path, NOT_A_PICKLE)) from None
         raise CheckpointError(
             f"not a readable hispo-pl checkpoint: {path} holds Python objects other than "
             f"tensors and plain values ({found.group(1)}), which hispo-pl never writes and will "
             "not load"
         ) from None
-    except (OSError, RuntimeError, EOFError, ValueError, KeyError, AttributeError) as err:
-        if isinstance(err, EOFError | KeyError):  # an empty file; bytes no pickle begins with
-            why = "the file is empty" if isinstance(err, EOFError) else "its bytes are not a pickle"
-            raise CheckpointError(_not_a_checkpoint(path, why)) from None
+    except RuntimeError as err:  # torch's reading of its own format: a truncated archive
         raise CheckpointError(_not_a_checkpoint(path, first_line(err))) from None
+    except Exception as err:  # noqa: BLE001 - whatever the unpickler trips on in bytes
+        empty = isinstance(err, EOFError) and Path(path).stat().st_size == 0
+        why = "the file is empty" if empty else NOT_A_PICKLE
+        raise CheckpointError(_not_a_checkpoint(path, why)) from None
     if not isinstance(checkpoint, dict) or not isinstance(checkpoint.get("state_dict"), dict):
         raise CheckpointError(
             f"not a readable hispo-pl checkpoint: {path} (no state_dict: not a Lightning "
             "checkpoint)"
         )
     return checkpoint
+
+
+NOT_A_PICKLE = "its bytes are not a pickle"
 
 
 def _not_a_checkpoint(path, why: str) -> str:
