@@ -170,6 +170,10 @@ def test_a_manifest_replaces_its_link_and_escapes_what_run_json_says(tmp_path):
     folder = tmp_path / "pointmaze-1"
     run = _finished_run(folder, "scn", 0)
     crafted = ["-m", "hispo_pl.cli", "fit", "x |\n| injected | row | here | `code` |\n"]
+    crafted += [  # a run directory with a cell's end and a code span in its name
+        *("--trainer.logger.init_args.save_dir", "/w/results/a|b`c`/runs"),
+        *("--trainer.logger.init_args.name", "scn", "--trainer.logger.init_args.version", "s0"),
+    ]
     record = {"argv": crafted, "commit": "abc|def", "machine": {"platform": "a\nb"}}
     write_run_files(run, launch=record)
     victim = tmp_path / "victim"
@@ -179,7 +183,8 @@ def test_a_manifest_replaces_its_link_and_escapes_what_run_json_says(tmp_path):
     assert victim.read_text() == "victim\n" and not (folder / MANIFEST).is_symlink()
     rows = [ln for ln in (folder / MANIFEST).read_text().splitlines() if ln.startswith("|")]
     assert len(rows) == 3 and "injected" in rows[2]  # the header, its rule, the run
-    assert rows[2].replace("\\|", "").count("|") == 5 and "\\`code\\`" in rows[2]
+    assert rows[2].replace("\\|", "").count("|") == 6 and "\\`code\\`" in rows[2]
+    assert "results/a\\|b\\`c\\`/runs/scn/s0" in rows[2]  # the run directory, escaped too
 
 
 def test_a_launch_records_the_checkout_commit_only_through_the_lab(monkeypatch):
