@@ -330,7 +330,7 @@ def provenance_problem(record: LaunchRecord) -> str | None:
     with uncommitted changes. A launch that records no commit at all has nothing to say."""
     if not record.holds("commit"):
         return None
-    for commit in [*(record.earlier_commits or []), record.commit]:
+    for commit in launch_commits(record):
         if not commit:
             return "no commit recorded (made outside a git checkout, or before runs recorded one)"
         if str(commit).endswith("+dirty"):
@@ -339,9 +339,10 @@ def provenance_problem(record: LaunchRecord) -> str | None:
 
 
 def launch_commits(old: LaunchRecord) -> list[str | None]:
-    """The commits a run was launched on so far, oldest first, from its last ``run.json``
-    (one entry per change of commit): what a resumed run's new record keeps as
-    ``earlier_commits``, so a run that spans checkouts names every one.
+    """The commits a run was launched on so far, oldest first, from its ``run.json`` (one
+    entry per change of commit): what a resumed run's new record keeps as
+    ``earlier_commits``, so a run that spans checkouts names every one, and what
+    :func:`provenance_problem` checks.
 
     Example:
         >>> launch_commits(LaunchRecord.from_json({"commit": "b", "earlier_commits": ["a"]}))
