@@ -7,6 +7,7 @@ launch a benchmark whose runs record the checkout's commit.
     python -m lab manifests                     # docs/results/*/MANIFEST.md
     python -m lab rebuild-docs README.md docs/results.md   # the reports the pages embed
     python -m lab migrate [docs/results] [--check]  # run files of earlier formats -> current
+    python -m lab config-drift --grid paper --part antmaze  # committed runs vs today's config
     python -m lab benchmark --grid paper --out results/grid --export docs/results
 """
 
@@ -122,6 +123,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     moved = verbs.add_parser("migrate", help="rewrite run files of earlier formats as current")
     moved.add_argument("root", nargs="?", type=Path, default=RESULTS)
     moved.add_argument("--check", action="store_true", help="only say which files would change")
+    drift = verbs.add_parser(
+        "config-drift", help="whether a grid's committed runs trained as it would train them today"
+    )
+    drift.add_argument("--grid", default="paper")
+    drift.add_argument("--part", default=None, help="a part or stream of the grid (default: all)")
+    drift.add_argument("--root", type=Path, default=RESULTS, help="where its runs are committed")
     verbs.add_parser("benchmark", help="hispo-pl benchmark, recording the checkout's commit")
     argv = list(sys.argv[1:] if argv is None else argv)
     verb = argv[0] if argv[:1] == ["benchmark"] else None
@@ -133,6 +140,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             from .migrate import migrate
 
             return migrate(args.root, check=args.check)
+        if args.verb == "config-drift":
+            from .drift import report_drift
+
+            return 1 if report_drift(args.grid, args.part, args.root) else 0
         run(args)
     except UserError as err:  # a flag, page or run file to fix: one line, as hispo-pl says it
         print(f"python -m lab {verb or args.verb}: {err}", file=sys.stderr)
