@@ -66,6 +66,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=100_000, help="steps per run")
     parser.add_argument("--every", type=int, default=10_000, help="steps between evaluations")
     parser.add_argument("--tolerance", type=float, default=2.0, help="success points for B")
+    parser.add_argument(
+        "--no-budget",
+        action="store_true",
+        help="a study of what a setting changes at a budget already chosen: choose none",
+    )
     parser.add_argument("--out", type=Path, default=Path("results/curves"))
     parser.add_argument("--export", type=Path, required=True)
     parser.add_argument("--workers", type=int, default=2)
@@ -95,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     study = {
         "settings": settings,
         "tasks": [f"{t.family}-{t.maze}" for t in tasks],
-        "budget_setting": settings[0],
+        "budget_setting": None if args.no_budget else settings[0],
         "tolerance": args.tolerance,
     }
     (args.export / CURVES_FILE).write_text(json.dumps(study, indent=1) + "\n")

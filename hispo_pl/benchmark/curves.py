@@ -34,7 +34,9 @@ class CurveStudy:
 
     settings: tuple[str, ...]  # run-name prefixes: hbc, bc
     tasks: tuple[str, ...]  # run-name suffixes: pointmaze-umaze, ...
-    budget_setting: str  # the setting whose curves choose the budget
+    # the setting whose curves choose the budget; None for a study of what a setting changes
+    # at budgets already chosen (``"budget_setting": null``), which chooses none
+    budget_setting: str | None
     tolerance: float = 2.0  # success points
 
     @classmethod
@@ -43,7 +45,7 @@ class CurveStudy:
         return cls(
             tuple(raw["settings"]),
             tuple(raw["tasks"]),
-            str(raw.get("budget_setting", raw["settings"][0])),
+            raw.get("budget_setting", raw["settings"][0]),
             float(raw.get("tolerance", 2.0)),
         )
 
@@ -128,9 +130,21 @@ def _cell(curve: MeanCurve, i: int) -> str:
     return f"{curve.mean[i]:.1f}{spread}"
 
 
+def _budget_line(study: CurveStudy, curves: Mapping[tuple[str, str], MeanCurve], last: int) -> str:
+    chosen = {t: c for (s, t), c in curves.items() if s == study.budget_setting}
+    missing = [t for t in study.tasks if t not in chosen]
+    if missing:
+        return f"Budget: not chosen yet ({study.budget_setting} lacks {', '.join(missing)})."
+    return (
+        f"Budget B = {choose_budget(chosen, study.tolerance):,} steps: the smallest evaluated "
+        f"step from which every {study.budget_setting} curve stays within "
+        f"{study.tolerance:g} points of its {last:,}-step value."
+    )
+
+
 def curves_markdown(study: CurveStudy, curves: Mapping[tuple[str, str], MeanCurve]) -> str:
     """The study's report: success per evaluated step (mean ± std over seeds), each pair's
-    seeds, the budget its ``budget_setting`` licenses, and the last step side by side."""
+    seeds, and the budget its ``budget_setting`` licenses (none for a study without one)."""
     lines = ["# Learning curves", ""]
     if not curves:
         return "\n".join([*lines, "No finished run yet.", ""])
@@ -143,18 +157,8 @@ def curves_markdown(study: CurveStudy, curves: Mapping[tuple[str, str], MeanCurv
     for (setting, task), curve in curves.items():
         cells = " | ".join(_cell(curve, i) for i in range(len(curve.steps)))
         lines.append(f"| {setting} | {task} | {curve.seeds} | {cells} |")
-    chosen = {t: c for (s, t), c in curves.items() if s == study.budget_setting}
-    missing = [t for t in study.tasks if t not in chosen]
-    lines.append("")
-    if missing:
-        lines.append(f"Budget: not chosen yet ({study.budget_setting} lacks {', '.join(missing)}).")
-    else:
-        budget = choose_budget(chosen, study.tolerance)
-        lines.append(
-            f"Budget B = {budget:,} steps: the smallest evaluated step from which every "
-            f"{study.budget_setting} curve stays within {study.tolerance:g} points of its "
-            f"{steps[-1]:,}-step value."
-        )
+    if study.budget_setting is not None:
+        lines += ["", _budget_line(study, curves, steps[-1])]
     lines.append("")
     return "\n".join(lines)
 
@@ -166,7 +170,8 @@ def curves_figure(study: CurveStudy, curves: Mapping[tuple[str, str], MeanCurve]
 
     tasks = [t for t in study.tasks if any(t == k[1] for k in curves)]
     chosen = {t: c for (s, t), c in curves.items() if s == study.budget_setting}
-    budget = choose_budget(chosen, study.tolerance) if set(chosen) == set(study.tasks) else None
+    whole = study.budget_setting is not None and set(chosen) == set(study.tasks)
+    budget = choose_budget(chosen, study.tolerance) if whole else None
     fig = Figure(figsize=(4.2 * max(len(tasks), 1), 3.4), layout="constrained")
     axes = fig.subplots(1, max(len(tasks), 1), squeeze=False)[0]
     for ax, task in zip(axes, tasks, strict=False):

@@ -13,6 +13,7 @@ from hispo_pl.benchmark.curves import (
     CurveStudy,
     MeanCurve,
     choose_budget,
+    curves_figure,
     curves_markdown,
     load_curves,
     mean_curve,
@@ -68,6 +69,22 @@ def test_report_names_the_budget_once_every_task_of_its_setting_has_runs(tmp_pat
     text = curves_markdown(study, load_curves(tmp_path, study))
     assert "| hbc | pointmaze-large | 2 | 30.0 ± 10.0 | 85.0 ± 5.0 | 90.0 ± 0.0 |" in text
     assert "Budget B = 30 steps" in text  # large is 5 points short at step 20
+
+
+def test_a_study_at_a_chosen_budget_reports_no_budget_of_its_own(tmp_path):
+    """A study of what a setting changes at a budget already chosen (``"budget_setting":
+    null``) shows its curves and chooses no budget, in its report and its figure."""
+    _write_run(tmp_path, "hbc-pointmaze-umaze", 0, (0.9, 1.0, 1.0))
+    args = ["--tasks", "pointmaze-umaze", "--settings", "hbc", "--export", str(tmp_path)]
+    assert study_script.main([*args, "--report-only", "--no-budget"]) == 0
+    assert json.loads((tmp_path / "curves.json").read_text())["budget_setting"] is None
+    study = CurveStudy.read(tmp_path)
+    curves = load_curves(tmp_path, study)
+    text = curves_markdown(study, curves)
+    assert "| hbc | pointmaze-umaze | 1 | 90.0 | 100.0 | 100.0 |" in text
+    assert "Budget" not in text
+    figure = curves_figure(study, curves)
+    assert not any("B =" in t.get_text() for ax in figure.axes for t in ax.texts)
 
 
 @pytest.mark.e2e
