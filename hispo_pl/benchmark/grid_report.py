@@ -21,7 +21,12 @@ from .grid import GRID_FILE, Grid
 from .grid_cost import cost_markdown, sweeps_markdown
 from .growth_curves import growth_data, has_random_streams
 from .growth_figures import write_growth_figures
-from .growth_report import findings_markdown, growth_markdown, memory_per_task_markdown
+from .growth_report import (
+    findings_markdown,
+    growth_markdown,
+    memory_per_task_markdown,
+    search_time_markdown,
+)
 from .tables import derived_footnote, derived_method
 from .transfer_report import PAC_METHOD, zero_shot_markdown
 
@@ -222,7 +227,7 @@ def plot_iqm_vs_memory(rows: Sequence[AggregateRow], path: Path, title: str) -> 
     return True
 
 
-GROWTH_REPORTS = ("growth.md", "growth-findings.md")  # a grid with a random stream's
+GROWTH_REPORTS = ("growth.md", "growth-findings.md", "search-time.md")  # a random grid's
 
 
 def growth(grid: Grid, committed: Committed):
@@ -260,7 +265,11 @@ def grid_reports(
         texts |= dict(
             zip(
                 GROWTH_REPORTS,
-                (growth_markdown(grid, data), findings_markdown(grid, data)),
+                (
+                    growth_markdown(grid, data),
+                    findings_markdown(grid, data),
+                    search_time_markdown(grid, data),
+                ),
                 strict=True,
             )
         )

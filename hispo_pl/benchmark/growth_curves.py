@@ -2,8 +2,9 @@
 draws (:mod:`.growth_report`, :mod:`.growth_figures`): MEM after each task, measured in the runs
 of the methods that decide their memory (HiSPO, CSPO, HiLOW: each run's ``mem_per_task``) and
 grown from the structure of those whose memory follows from it (SCN, FTN, PNN: :mod:`.growth`);
-PER after each task from each run's success matrix; the anchors held after each task; and how a
-curve grows (:class:`Growth`).
+PER after each task from each run's success matrix; the anchors held after each task; the
+anchors each task's search weighed and the seconds it took; and how a curve grows
+(:class:`Growth`).
 
     data = growth_data(grid, Committed(root))
 """
@@ -62,6 +63,26 @@ def anchors_after_each_task(decisions: Sequence[Decision], n_tasks: int) -> list
     return after
 
 
+def anchors_searched_each_task(decisions: Sequence[Decision], n_tasks: int) -> list[int | None]:
+    """The anchors each task's search weighed, summed over the subspaces it searched: each
+    subspace's grown point (``alpha_curr``) has a weight per anchor. None for a task without a
+    search (a method that searches none, a task decided before the search ran).
+
+    Example:
+        >>> from hispo_pl.results import LossDecision
+        >>> d = [LossDecision(task=1, subspace=s, decision="keep", alpha_curr=[0.5, 0.5])
+        ...      for s in ("high", "low")]
+        >>> anchors_searched_each_task(d, 2)
+        [None, 4]
+    """
+    searched: list[dict[str, int]] = [{} for _ in range(n_tasks)]
+    for d in decisions:
+        alpha = getattr(d, "alpha_curr", None)
+        if alpha is not None and 0 <= d.task < n_tasks:
+            searched[d.task][d.subspace] = len(alpha)
+    return [sum(task.values()) if task else None for task in searched]
+
+
 @dataclass(frozen=True)
 class Growth:
     """How a curve of values after each task grows: per task over the first half of the
@@ -91,7 +112,9 @@ class Growth:
 @dataclass(frozen=True)
 class RunCurves:
     """One committed run's curves after each task: MEM (None: not measured after every task),
-    PER (from its success matrix) and the anchors it holds (None: it decides none)."""
+    PER (from its success matrix) and the anchors it holds (None: it decides none); per task,
+    the anchors its search weighed, the search's seconds and the task's wall seconds (None
+    where not recorded)."""
 
     stream: str
     method: str
@@ -99,6 +122,9 @@ class RunCurves:
     memory: list[float] | None
     per: list[float]
     anchors: list[int] | None
+    searched: list[int | None] = field(default_factory=list)
+    search_seconds: list[float | None] = field(default_factory=list)
+    wall_seconds: list[float | None] = field(default_factory=list)
 
 
 @dataclass
@@ -141,7 +167,8 @@ def growth_data(grid, committed, config_dir: Path | None = None) -> GrowthData:
                     missing.append((stream, method, seed))
                     continue
                 results = record.results
-                memory = results.mem_per_task
+                memory, n = results.mem_per_task, len(results.stream)
+                phases = list(results.phase_time_s or [None] * n)
                 runs.append(
                     RunCurves(
                         stream,
@@ -149,7 +176,10 @@ def growth_data(grid, committed, config_dir: Path | None = None) -> GrowthData:
                         seed,
                         None if not memory or None in memory else [float(m) for m in memory],
                         per_after_each_task(results.R),
-                        anchors_after_each_task(record.decisions, len(results.stream)),
+                        anchors_after_each_task(record.decisions, n),
+                        anchors_searched_each_task(record.decisions, n),
+                        [(p or {}).get("search") for p in phases],
+                        list(results.wall_time_s or [None] * n),
                     )
                 )
     structure = {}

@@ -6,9 +6,10 @@ follows from it (SCN, FTN, PNN: :mod:`.growth`), with the structure checked agai
 runs; PER after each task comes from each run's success matrix. The grid report writes them for
 a grid with a random stream (:func:`~.growth_curves.has_random_streams`): ``growth.md`` (the
 fitted growth per method and stream, the check, the runs not committed yet), ``growth-findings.md``
-(what the runs show, in sentences filled from them), ``memory_growth.png`` and
-``per_after_task.png``. Here: the report's text; the curves it reads are :mod:`.growth_curves`'s,
-its figures :mod:`.growth_figures`'s.
+(what the runs show, in sentences filled from them), ``search-time.md`` (the seconds a task's
+search takes against the anchors it weighs), ``memory_growth.png`` and ``per_after_task.png``.
+Here: the report's text; the curves it reads are :mod:`.growth_curves`'s, its figures
+:mod:`.growth_figures`'s.
 
     data = growth_data(grid, Committed(root))  # from .growth_curves
     print(growth_markdown(grid, data))
@@ -202,6 +203,49 @@ def findings_markdown(grid, data: GrowthData) -> str:
         if structure:
             lines.append(f"  From their structure: {'; '.join(structure)}.")
     lines.append("")
+    return "\n".join(lines)
+
+
+def search_time_markdown(grid, data: GrowthData) -> str:
+    """Whether the search stays cheap as a subspace grows: per method and family, the seconds a
+    task's search took against the anchors it weighed (summed over the subspaces searched),
+    over every committed run and task, with its share of the task's wall time."""
+    lines = [f"# Search time against anchors: grid {grid.name}\n"]
+    cells: dict[tuple[str, str, int], list[tuple[float, float | None]]] = {}
+    for family, streams in data.families.items():
+        for r in data.runs:
+            if r.stream not in streams:
+                continue
+            for k, (n, sec) in enumerate(zip(r.searched, r.search_seconds, strict=False)):
+                if n is not None and sec is not None:
+                    wall = r.wall_seconds[k] if k < len(r.wall_seconds) else None
+                    cells.setdefault((r.method, family, n), []).append((sec, wall))
+    if not cells:
+        lines.append("No committed run has searched a subspace yet.\n")
+        return "\n".join(lines)
+    lines += [
+        "| method | family | anchors searched | tasks | search s / task | share of the task's "
+        "wall time |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+    order = {m: i for i, m in enumerate(grid.methods)}
+    for method, family, n in sorted(cells, key=lambda c: (order.get(c[0], 99), c[1], c[2])):
+        found = cells[(method, family, n)]
+        seconds = float(np.mean([sec for sec, _ in found]))
+        shares = [sec / wall for sec, wall in found if wall]
+        share = f"{100 * float(np.mean(shares)):.2f} %" if shares else ""
+        lines.append(f"| {method} | {family} | {n} | {len(found)} | {seconds:.1f} | {share} |")
+    method, family, n = max(cells, key=lambda c: (c[2], np.mean([x for x, _ in cells[c]])))
+    most = float(np.mean([sec for sec, _ in cells[(method, family, n)]]))
+    lines += [
+        "",
+        f"The largest search weighed {n} anchors ({method}, {family}): {most:.1f} s per task.",
+        "",
+        "Seconds of the Dirichlet search (or the critic's) after a task's training, mean over "
+        "the committed runs' tasks that searched that many anchors; its share of the task's "
+        "wall time (training, search, evaluation). Anchors searched: the weights of the grown "
+        "subspace's best point, summed over the subspaces searched.\n",
+    ]
     return "\n".join(lines)
 
 

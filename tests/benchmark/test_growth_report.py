@@ -15,7 +15,11 @@ from helpers import fit_tiny_stream
 from hispo_pl.benchmark.grid import grid_from_dict, load_grid
 from hispo_pl.benchmark.grid_report import Committed, grid_reports, write_grid_report
 from hispo_pl.benchmark.growth_curves import Growth, growth_data, per_after_each_task
-from hispo_pl.benchmark.growth_report import findings_markdown, growth_markdown
+from hispo_pl.benchmark.growth_report import (
+    findings_markdown,
+    growth_markdown,
+    search_time_markdown,
+)
 from hispo_pl.rundir import RunDir
 from lab.embed import EMBED_BEGIN, EMBED_END, embed_reports
 
@@ -87,6 +91,31 @@ def test_the_report_reads_each_run_s_files(committed_runs):
     for method in METHODS:
         assert f"{method} (1 run)" in findings
     assert f"pnn {float(structure['pnn'][3]):.2f} after 4 tasks" in findings
+
+
+@pytest.mark.e2e
+def test_the_search_time_report_reads_each_task_s_search(committed_runs):
+    """Per task, the anchors the search weighed are the grown points' weights in the run's
+    decisions and its seconds the run's recorded search phase; SCN searches nothing."""
+    grid = _grid()
+    data = growth_data(grid, Committed(committed_runs))
+    for method in ("hispo", "hilow"):
+        (run,) = [r for r in data.runs if r.method == method]
+        results = _results(committed_runs, method)
+        assert run.search_seconds == [p.get("search") for p in results["phase_time_s"]]
+        assert run.wall_seconds == results["wall_time_s"]
+        lines = (committed_runs / STREAM / method / "seed0/decisions.jsonl").read_text()
+        decisions = [json.loads(line) for line in lines.splitlines()]
+        for k, searched in enumerate(run.searched):
+            grown = {d["subspace"]: len(d["alpha_curr"]) for d in decisions
+                     if d["task"] == k and d.get("alpha_curr")}  # fmt: skip
+            assert searched == sum(grown.values()) > 0
+    (scn,) = [r for r in data.runs if r.method == "scn"]
+    assert set(scn.searched) == {None}
+    text = search_time_markdown(grid, data)
+    largest = max(n for r in data.runs for n in r.searched if n is not None)
+    assert f"The largest search weighed {largest} anchors" in text
+    assert "| hispo | pointmaze | 2 |" in text and "| scn |" not in text
 
 
 def _structure_row(text: str, method: str) -> list[str]:
