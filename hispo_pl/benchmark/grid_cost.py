@@ -85,15 +85,15 @@ def _copied_from_sweep(record: RunRecord, root: Path) -> bool:
     return (root / stream / SWEEPS_DIR / label / seed).is_dir()
 
 
-def cost_markdown(grid: Grid, committed) -> str:
-    """What the committed runs of the grid cost: wall hours per method (sweeps included) and
-    the share of training, in-fit evaluation and the subspace search."""
-    per_method: dict[str, list[RunRecord]] = {}
+def _costed_runs(grid: Grid, committed) -> tuple[dict, dict]:
+    """The committed runs the cost counts, per method as (stream, record), sweeps included
+    and a seed copied from its sweep left out; and the derived ones, per method."""
+    per_method: dict[str, list[tuple[str, RunRecord]]] = {}
     derived: dict[str, list[tuple[str, int, str]]] = {}
     for stream in grid.streams:
         for record in committed.records(stream):
             if record.method in grid.methods and not _copied_from_sweep(record, committed.root):
-                per_method.setdefault(record.method, []).append(record)
+                per_method.setdefault(record.method, []).append((stream, record))
                 if record.derived_from:
                     where = (stream, record.seed, record.derived_from)
                     derived.setdefault(record.method, []).append(where)
@@ -101,8 +101,27 @@ def cost_markdown(grid: Grid, committed) -> str:
             run = RunDir(seed_dir)
             if run.has_results():
                 method = seed_dir.parent.name.split("-")[0]
-                results = run.stream_results()
-                per_method.setdefault(method, []).append(RunRecord(method, 0, results))
+                record = RunRecord(method, 0, run.stream_results())
+                per_method.setdefault(method, []).append((stream, record))
+    return per_method, derived
+
+
+def _parts_lines(grid: Grid, per_method: dict) -> list[str]:
+    """Wall hours per part of the grid (its named sets of streams), for a grid with parts."""
+    if not grid.parts:
+        return []
+    lines = ["", "| part | streams | runs | hours |", "|---|---|---:|---:|"]
+    for part, streams in grid.parts.items():
+        runs = [r for found in per_method.values() for s, r in found if s in streams]
+        hours = sum(run_minutes(r) for r in runs) / 60
+        lines.append(f"| {part} | {', '.join(streams)} | {len(runs)} | {hours:.1f} |")
+    return lines
+
+
+def cost_markdown(grid: Grid, committed) -> str:
+    """What the committed runs of the grid cost: wall hours per method (sweeps included) and
+    the share of training, in-fit evaluation and the subspace search; then per part."""
+    per_method, derived = _costed_runs(grid, committed)
     lines = [
         f"# Cost: grid {grid.name}\n",
         "| method | runs | hours | minutes per run | training | evaluation | search |",
@@ -110,7 +129,7 @@ def cost_markdown(grid: Grid, committed) -> str:
     ]
     total_runs, total_minutes = 0, 0.0
     for method in [m for m in grid.methods if m in per_method]:
-        records = per_method[method]
+        records = [r for _, r in per_method[method]]
         minutes = sum(run_minutes(r) for r in records)
         phases = {p: 0.0 for p in PHASES}
         for r in records:
@@ -128,12 +147,15 @@ def cost_markdown(grid: Grid, committed) -> str:
     if total_runs == 0:
         return ""
     lines.append(f"| all | {total_runs} | {total_minutes / 60:.1f} | | | | |")
+    lines += _parts_lines(grid, per_method)
     legend = (
         "\nWall time of the committed runs (the sum of their tasks' wall times: one torch "
         "thread each, two runs at a time on 2 CPU cores), sweeps included and a seed copied "
         "from its sweep counted once; the shares split "
         "each task's time between gradient steps, the rollout evaluation after each task and "
-        "the subspace search before its decision.\n"
+        "the subspace search before its decision."
+        + (" The parts' table sums the same runs per part of the grid." if grid.parts else "")
+        + "\n"
     )
     notes = [
         derived_footnote(m, derived[m], len(per_method[m])) + " Their minutes are the "

@@ -322,6 +322,33 @@ def test_iqm_interval_is_seeded_and_leaves_numpy_alone():
     assert low <= point <= high and low >= 70.0 and high <= 95.0
 
 
+def test_cost_sums_the_same_runs_per_part_of_the_grid():
+    """On the committed paper grid: each part's runs are the committed runs under its streams
+    (sweeps included, a seed copied from its sweep once), and the parts add up to the whole."""
+    grid = gr.load_grid("paper", ROOT / "configs")
+    text = gp.cost_markdown(grid, gp.Committed(ROOT / "docs/results"))
+    rows = {line.split("|")[1].strip(): line.split("|")[2:] for line in text.splitlines()
+            if line.startswith("| ")}  # fmt: skip
+    (total_runs, total_hours) = (int(rows["all"][0]), float(rows["all"][1]))
+    parts = {p: (int(rows[p][1]), float(rows[p][2])) for p in grid.parts}
+    assert sum(r for r, _ in parts.values()) == total_runs
+    assert sum(h for _, h in parts.values()) == pytest.approx(total_hours, abs=0.15)
+    for part, streams in grid.parts.items():
+        found = 0
+        for stream in streams:
+            folder = ROOT / "docs/results" / stream
+            found += len(list(folder.glob("sweeps/*/seed*/results.json")))
+            for method in grid.methods:
+                for seed in folder.glob(f"{method}/seed*/results.json"):
+                    source = json.loads((seed.parent / "run.json").read_text()).get(
+                        "derived_from", ""
+                    )
+                    label_seed = source.partition("/")[2]
+                    copied = source and (folder / "sweeps" / label_seed).is_dir()
+                    found += not copied
+        assert parts[part][0] == found, part
+
+
 def test_cost_counts_a_seed_copied_from_its_sweep_once(tmp_path):
     src = ROOT / "docs/results/pointmaze-1"
     root = tmp_path / "results"
