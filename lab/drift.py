@@ -28,9 +28,9 @@ FIT_SUBCOMMAND_KEYS = ("ckpt_path", "weights_only")
 
 def family_resolved(settings: Mapping, family) -> dict:
     """``settings`` (a run's fingerprint) with the values left to ``family`` written in: what
-    each policy reads (``family``), how a new anchor starts, and each subspace's pruning ε
-    where neither it nor a shared ε is set (as the datamodule and
-    :class:`~hispo_pl.callbacks.anchors.SubspacePruning` read the family)."""
+    each policy reads (``family``), how a new anchor starts, and the pruning ε of each of the
+    family's subspaces that neither its own flag nor the ``eps`` mapping sets (as the
+    datamodule and :class:`~hispo_pl.callbacks.anchors.SubspacePruning` read the family)."""
     out = dict(settings)
     for key, value in (("data.low_inputs", family.low_inputs),
                        ("data.high_inputs", family.high_inputs)):  # fmt: skip
@@ -38,11 +38,10 @@ def family_resolved(settings: Mapping, family) -> dict:
             out[key] = value
     if ANCHOR_INIT in out and out[ANCHOR_INIT] is None:
         out[ANCHOR_INIT] = family.anchor_init
-    if out.get(PRUNING + "eps") is None:
-        for name, eps in family.pruning_eps.items():
-            key = f"{PRUNING}eps_{name}"
-            if key in out and out[key] is None:
-                out[key] = eps
+    for name, eps in family.pruning_eps.items():
+        key, named = f"{PRUNING}eps_{name}", f"{PRUNING}eps.{name}"
+        if key in out and out[key] is None and out.get(named) is None:
+            out[key] = eps
     return out
 
 

@@ -27,8 +27,10 @@ def test_a_setting_left_to_the_family_reads_as_the_familys_value():
     assert resolved[drift.ANCHOR_INIT] == family.anchor_init
     assert resolved[drift.PRUNING + "eps_high"] == family.pruning_eps["high"]
     assert resolved[drift.PRUNING + "eps_low"] == family.pruning_eps["low"]
-    shared = {**unset, drift.PRUNING + "eps": 0.2}  # a shared ε is the run's own, not the family's
-    assert drift.family_resolved(shared, family)[drift.PRUNING + "eps_low"] is None
+    # a subspace the ``eps`` mapping names takes its tolerance from there, not the family's
+    named = drift.family_resolved({**unset, drift.PRUNING + "eps.low": 0.2}, family)
+    assert named[drift.PRUNING + "eps_low"] is None
+    assert named[drift.PRUNING + "eps_high"] == family.pruning_eps["high"]
     set_ = {drift.ANCHOR_INIT: "random"}
     assert drift.family_resolved(set_, FAMILIES["antmaze"])[drift.ANCHOR_INIT] == "random"
 
