@@ -33,6 +33,23 @@ def _print_report(out: Path, stream: str | None) -> None:
         print(f"[benchmark] wrote {path}")
 
 
+def selection_line(grid, chosen, seeds: str | None) -> str:
+    """What ``--methods`` and ``--seeds`` selected of ``grid``, said before the plan: a bare
+    count is the first seeds, which a user meaning one seed would not see otherwise.
+
+    Example:
+        >>> from hispo_pl.benchmark.grid import grid_from_dict
+        >>> g = grid_from_dict({"streams": ["pointmaze-1"], "methods": ["scn", "hispo"],
+        ...                     "seeds": 3}, "g")
+        >>> print(selection_line(g, _grid_selection(g, "scn", "2"), "2"))
+        [grid] selected: scn; seeds 0, 1 (--seeds 2 is a count; one seed alone is --seeds 2,)
+    """
+    said = ", ".join(map(str, chosen.seeds))
+    if seeds is not None and "," not in seeds:
+        said += f" (--seeds {seeds} is a count; one seed alone is --seeds {seeds.strip()},)"
+    return f"[grid] selected: {', '.join(chosen.methods)}; seeds {said}"
+
+
 def _grid_selection(grid, methods: str, seeds: str | None):
     """The part of ``grid`` that ``--methods`` and ``--seeds`` select, for what to run; the
     reports always cover the whole grid.
@@ -77,6 +94,8 @@ def _grid_main(parser, args, extra: list[str]) -> int:
         chosen = _grid_selection(grid, args.methods, args.seeds)
     except (ConfigError, ValueError) as e:
         parser.error(str(e))
+    if chosen != grid:
+        print(selection_line(grid, chosen, args.seeds))
     if extra or args.steps_per_task is not None:
         parser.error(
             "--grid runs what its file defines, and skips what was committed with it: put fit "

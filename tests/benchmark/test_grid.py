@@ -87,12 +87,18 @@ def test_methods_and_seeds_select_part_of_the_grid(tmp_path, capsys):
     args = ["benchmark", "--grid", "paper", "--part", "pointmaze-1", "--out", str(tmp_path / "w")]
     args += ["--export", str(tmp_path / "r"), "--methods", "scn", "--dry-run"]
     assert cli_main([*args, "--seeds", "1,2"]) == 0
-    planned = [line for line in capsys.readouterr().out.splitlines() if " fit " in line]
+    out = capsys.readouterr().out
+    assert "[grid] selected: scn; seeds 1, 2\n" in out
+    planned = [line for line in out.splitlines() if " fit " in line]
     assert [line.split("--trainer.logger.init_args.version ")[1][:5] for line in planned] == [
         "seed1",
         "seed2",
     ]
     assert all("--trainer.logger.init_args.name scn " in line for line in planned)
+    # a bare number is a count: said with the seeds it selects, and how to name one seed
+    assert cli_main([*args, "--seeds", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "seeds 0, 1 (--seeds 2 is a count; one seed alone is --seeds 2,)" in out
     assert cli_main([*args, "--seeds", "0,7"]) == 2
     assert "--seeds 0,7: the grid paper has seeds 0, 1, 2" in capsys.readouterr().err
 
