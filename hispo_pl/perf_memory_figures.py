@@ -44,6 +44,7 @@ def label_offsets(
     sizes: Sequence[tuple[float, float]],
     bounds: tuple[float, float, float, float] | None = None,
     marker: float = 7.0,
+    obstacles: Sequence[tuple[float, float]] = (),
 ) -> list[tuple[float, float, bool]]:
     """Where each point's label goes, as the offset in points from the point to the label's
     lower-left corner and whether it needs a leader line: the nearest free place on rings
@@ -52,11 +53,12 @@ def label_offsets(
     (``marker`` points wide), inside ``bounds`` (the axes: x0, y0, x1, y1) when given.
     ``points`` are in points on the page. Labels of a crowded spot fan out around it, each
     joined to its point by a leader line, rather than stacking in a column away from it;
-    with no free place at all, the label goes right of its point."""
+    with no free place at all, the label goes right of its point. ``obstacles``: other
+    markers (unlabelled, in points on the page) that no label may cover."""
     placed: list[tuple[float, float, float, float]] = []
     offsets = []
     half = marker / 2
-    marks = [(px - half, py - half, px + half, py + half) for px, py in points]
+    marks = [(px - half, py - half, px + half, py + half) for px, py in [*points, *obstacles]]
     for (x, y), (w, h) in zip(points, sizes, strict=True):
         choice = None
         # first a place nearer its own point than any other; in a tight crowd, any free one
@@ -185,15 +187,23 @@ def label_markers(
     names: Sequence[str],
     centres: Sequence[tuple[float, float]],
     fontsize: float = 8,
+    obstacles: Sequence[tuple[float, float]] = (),
 ) -> None:
     """Write each method's name beside its point (data coordinates ``centres``) in its
-    colour, where :func:`label_offsets` finds room; a label that had to move past its
-    neighbours keeps a thin leader line to its own point."""
+    colour, where :func:`label_offsets` finds room, clear of the unlabelled markers at
+    ``obstacles`` too; a label that had to move past its neighbours keeps a thin leader line
+    to its own point."""
     fig.draw_without_rendering()  # the layout's final axes, so labels are placed as drawn
     points = ax.transData.transform(centres) * 72 / fig.dpi if centres else []
+    others = ax.transData.transform(obstacles) * 72 / fig.dpi if obstacles else []
     sizes = [(0.62 * fontsize * len(name), 1.2 * fontsize) for name in names]
     frame = ax.get_window_extent().extents * 72 / fig.dpi
-    offsets = label_offsets([tuple(p) for p in points], sizes, bounds=tuple(frame))
+    offsets = label_offsets(
+        [tuple(p) for p in points],
+        sizes,
+        bounds=tuple(frame),
+        obstacles=[tuple(p) for p in others],
+    )
     for name, centre, (dx, dy, leader) in zip(names, centres, offsets, strict=True):
         color = method_style(name)["color"]
         ax.annotate(
@@ -212,10 +222,18 @@ def label_markers(
         )
 
 
-def iqm_vs_memory_figure(rows: Sequence, title: str) -> Figure:
+def iqm_vs_memory_figure(
+    rows: Sequence,
+    title: str,
+    reference: Mapping[str, tuple[float, float]] | None = None,
+    reference_name: str = "",
+) -> Figure:
     """PER's IQM with its interval against mean MEM, one point per method in its own style
     (rows with ``method``, ``streams``, ``means`` and ``iqm``: point, low, high), each named
-    beside its point (no legend); the x label says over how many streams."""
+    beside its point (no legend); the x label says over how many streams. ``reference``: a
+    figure to set beside ours per method, ``(MEM, PER)`` (another protocol's, e.g. a paper's
+    on the same streams), drawn hollow in the method's colour and joined to our point by a
+    dotted line; ``reference_name`` says whose it is, under the axis."""
     fig = Figure(figsize=(6.4, 4.6), layout="constrained")
     ax = fig.add_subplot()
     drawn = [r for r in rows if "MEM" in r.means]
@@ -223,17 +241,27 @@ def iqm_vs_memory_figure(rows: Sequence, title: str) -> Figure:
         point, low, high = row.iqm
         _draw_method(ax, row.method, row.means["MEM"], point,
                      yerr=[[point - low], [high - point]])  # fmt: skip
-    xs = [r.means["MEM"] for r in drawn] or [1.0]
+    beside = {r.method: (reference or {})[r.method] for r in drawn if r.method in (reference or {})}
+    for row in drawn:
+        if row.method not in beside:
+            continue
+        style, (mem, per) = method_style(row.method), beside[row.method]
+        ax.plot([row.means["MEM"], mem], [row.iqm[0], per], ls=":", lw=0.8, color=style["color"])
+        ax.plot(mem, per, ls="none", marker=style["fmt"], mfc="none", mec=style["color"],
+                ms=marker_size(style["fmt"]), mew=1.2, zorder=3)  # fmt: skip
+    xs = [r.means["MEM"] for r in drawn] + [m for m, _ in beside.values()] or [1.0]
     ax.set_xlim(*span_limits(min(xs), max(xs), min_span=1.0))
     ax.set_ylim(0, max([r.iqm[2] for r in drawn] + [100.0]) + 5)  # a bar and a label at 100 %
     ax.set_yticks(range(0, 101, 20))
     plain_ticks(ax)
     ax.xaxis.set_major_formatter("{x:.2f}")
     note = _count_note({r.method: len(r.streams) for r in drawn}, "stream")
+    if beside:
+        note += f"{'; ' if note else ''}hollow: {reference_name or 'reference'}"
     ax.set_xlabel("MEM (mean stored size / one single-task model)" + (f"\n{note}" if note else ""))
     ax.set_ylabel("PER IQM (success %), 95 % CI")
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
     centres = [(r.means["MEM"], r.iqm[0]) for r in drawn]
-    label_markers(fig, ax, [r.method for r in drawn], centres, fontsize=7)
+    label_markers(fig, ax, [r.method for r in drawn], centres, 7, list(beside.values()))
     return fig

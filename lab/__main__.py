@@ -64,8 +64,10 @@ def grid_reports(name: str, root: Path) -> None:
     for stream in grid.streams:
         with suppress(FileNotFoundError):  # nothing committed for it yet
             write_report(root / stream, stream)
-    for path in write_grid_report(grid, root, reports=beside_paper.grid_reports):
-        print(f"[lab] wrote {path}")
+    written = write_grid_report(grid, root, reports=beside_paper.grid_reports)
+    for path in [*written, beside_paper.write_beside_paper_figure(grid, root)]:
+        if path is not None:
+            print(f"[lab] wrote {path}")
 
 
 def claims(folder: Path) -> None:

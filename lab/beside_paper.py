@@ -222,6 +222,42 @@ def summary_markdown(committed: Committed) -> str:
     return "\n".join(lines) + "\n" + legend
 
 
+BESIDE_FIGURE = "per_vs_memory-beside-paper.png"
+
+
+def paper_points(rows: Sequence[AggregateRow]) -> dict[str, tuple[float, float]]:
+    """Per method of ``rows``, the paper's ``(MEM, PER)`` averaged over the streams of its row
+    (its per-stream tables); methods it has no figure for on one of them are left out."""
+    points = {}
+    for row in rows:
+        mem, per = (paper.mean_of(m, row.method, list(row.streams)) for m in ("MEM", "PER"))
+        if mem is not None and per is not None:
+            points[row.method] = (mem, per)
+    return points
+
+
+def write_beside_paper_figure(grid: Grid, root: Path) -> Path | None:
+    """The grid's PER-against-memory figure with the paper's point beside each method's
+    (hollow, on the same streams): ``grid-<name>/per_vs_memory-beside-paper.png``. None when
+    no method has both (or matplotlib is missing)."""
+    try:
+        from hispo_pl.perf_memory_figures import iqm_vs_memory_figure
+    except ImportError:
+        return None
+    from hispo_pl.benchmark.grid_report import report_dir
+    from hispo_pl.io import real_folder, write_figure
+
+    rows = aggregate_rows(grid, Committed(root))
+    points = paper_points(rows)
+    if not points:
+        return None
+    title = f"PER against memory beside the paper: grid {grid.name}"
+    figure = iqm_vs_memory_figure(rows, title, points, "the paper's, on the same streams")
+    path = real_folder(report_dir(grid, root), root) / BESIDE_FIGURE
+    write_figure(figure, path, dpi=150, bbox_inches="tight")
+    return path
+
+
 def grid_reports(grid: Grid, root: Path, committed: Committed) -> tuple[dict[str, str], list]:
     """A grid's reports as this repository commits them: the product's, the aggregates with
     the paper's columns, the summary and the tables beside the paper's."""

@@ -38,7 +38,13 @@ def paper_row(stream: str, method: str) -> dict[str, Stat] | None:
 def mean_per(method: str, streams: list[str]) -> float | None:
     """The paper's PER of ``method`` averaged over ``streams`` (its per-stream tables): its
     figure on exactly the streams a row of ours covers. ``None`` where a stream lacks it."""
+    return mean_of("PER", method, streams)
+
+
+def mean_of(metric: str, method: str, streams: list[str]) -> float | None:
+    """The paper's ``metric`` of ``method`` averaged over ``streams`` (its per-stream tables);
+    ``None`` where a stream lacks it."""
     rows = [paper_row(stream, method) for stream in streams]
     if not rows or any(row is None for row in rows):
         return None
-    return sum(row["PER"][0] for row in rows) / len(rows)
+    return sum(row[metric][0] for row in rows) / len(rows)

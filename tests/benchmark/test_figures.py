@@ -206,6 +206,41 @@ def test_perf_vs_memory_has_plain_axes_the_whole_success_range_and_separate_labe
     assert ax.containers[0].has_yerr
 
 
+def test_a_reference_is_drawn_hollow_beside_each_method_and_no_label_covers_it():
+    """Another protocol's figure on the same streams (the paper's) beside ours: a hollow
+    marker per method that has one, in its colour, joined to our point, and said under the
+    axis; names stay clear of the hollow markers."""
+    from types import SimpleNamespace
+
+    from hispo_pl.perf_memory_figures import iqm_vs_memory_figure
+
+    rows = [
+        SimpleNamespace(method="hispo", streams=["a", "b"], means={"MEM": 3.5}, iqm=(92, 91, 93)),
+        SimpleNamespace(method="scn", streams=["a", "b"], means={"MEM": 4.0}, iqm=(93, 92, 94)),
+        SimpleNamespace(method="ftn", streams=["a"], means={"MEM": 4.0}, iqm=(96, 96, 96)),
+    ]
+    reference = {"hispo": (2.1, 98.9), "scn": (4.0, 99.0), "pnn": (9.9, 99.5)}  # pnn: no row
+    fig = iqm_vs_memory_figure(rows, "beside", reference, "the paper's")
+    (ax,) = fig.axes
+    hollow = [line for line in ax.lines if line.get_markerfacecolor() == "none"]
+    drawn = sorted((float(h.get_xdata()[0]), float(h.get_ydata()[0])) for h in hollow)
+    assert drawn == [(2.1, 98.9), (4.0, 99.0)]  # one per method with a row and a figure
+    from matplotlib.colors import to_rgba
+
+    colours = {to_rgba(h.get_markeredgecolor()) for h in hollow}
+    assert colours == {_styles(ax)[m][0] for m in ("hispo", "scn")}
+    assert ax.get_xlim()[0] < 2.1 and ax.get_xlabel().endswith("hollow: the paper's")
+    fig.draw_without_rendering()
+    marks = ax.transData.transform(drawn) * 72 / fig.dpi
+    for text in ax.texts:
+        box = text.get_window_extent().extents * 72 / fig.dpi
+        for mx, my in marks:
+            assert not (box[0] < mx + 3.5 and mx - 3.5 < box[2] and box[1] < my + 3.5
+                        and my - 3.5 < box[3]), text.get_text()  # fmt: skip
+    plain = iqm_vs_memory_figure(rows, "ours alone")
+    assert not [line for line in plain.axes[0].lines if line.get_markerfacecolor() == "none"]
+
+
 def test_labels_of_coincident_points_fan_out_around_them():
     offsets = label_offsets([(100, 100)] * 5, [(20, 10)] * 5)
     boxes = [(100 + dx, 100 + dy, 120 + dx, 110 + dy) for dx, dy, _ in offsets]

@@ -57,6 +57,27 @@ def test_the_aggregate_gets_the_papers_columns_and_a_page_embeds_it(tmp_path):
     assert rebuilt == embed_reports(page, Path("/"))  # the intervals are seeded
 
 
+def test_the_papers_point_beside_ours_is_its_mean_over_the_rows_streams(tmp_path):
+    from types import SimpleNamespace
+
+    streams = ["pointmaze-1", "pointmaze-2"]
+    rows = [SimpleNamespace(method=m, streams=streams) for m in ("hispo", "scn", "cspo")]
+    points = beside_paper.paper_points(rows)
+    assert set(points) == {"hispo", "scn"}  # the paper has no per-stream CSPO
+    mem, per = points["hispo"]
+    assert per == pytest.approx((98.0 + 99.8) / 2) and mem == pytest.approx((2.3 + 1.9) / 2)
+    assert per == pytest.approx(paper.mean_per("hispo", streams))
+    # a grid's committed runs give the figure beside the paper's, in its report folder
+    root = tmp_path / "results"
+    for stream in streams:
+        for seed in range(3):
+            src = ROOT / f"docs/results/paper-protocol/{stream}/hispo/seed{seed}"
+            shutil.copytree(src, root / stream / "hispo" / f"seed{seed}")
+    grid = gr.grid_from_dict({"streams": streams, "methods": ["hispo"], "seeds": 3}, "g")
+    path = beside_paper.write_beside_paper_figure(grid, root)
+    assert path == root / "grid-g" / beside_paper.BESIDE_FIGURE and path.stat().st_size > 0
+
+
 def test_beside_paper_puts_the_papers_figure_next_to_ours(tmp_path):
     shutil.copytree(RESULTS / "pointmaze-1/frz", tmp_path / "pointmaze-1/frz")
     text = beside_paper.beside_paper_markdown(gp.Committed(tmp_path))
