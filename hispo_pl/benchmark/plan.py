@@ -338,6 +338,18 @@ def provenance_problem(record: LaunchRecord) -> str | None:
     return None
 
 
+def earlier_than(commits: list[str | None], commit: str | None) -> list[str | None]:
+    """The commits of a run's earlier launches, ``commits`` (oldest first), as its launch on
+    ``commit`` records them: a last one equal to ``commit`` is the same checkout resumed, not
+    an earlier one.
+
+    Example:
+        >>> earlier_than(["a", "b"], "b"), earlier_than(["a", "b"], "c")
+        (['a'], ['a', 'b'])
+    """
+    return commits[:-1] if commits and commits[-1] == commit else commits
+
+
 def launch_commits(old: LaunchRecord) -> list[str | None]:
     """The commits a run was launched on so far, oldest first, from its ``run.json`` (one
     entry per change of commit): what a resumed run's new record keeps as
@@ -408,7 +420,8 @@ def pending_runs(
             branched = {"branched_from": old.branched_from, "branched_tasks": old.branched_tasks}
             record = record.merged({k: v for k, v in branched.items() if old.holds(k)})
             if run_dir.progress_file.exists() and old.holds("commit") and record.holds("commit"):
-                record = record.merged({"earlier_commits": launch_commits(old)})
+                earlier = earlier_than(launch_commits(old), record.commit)
+                record = record.merged({"earlier_commits": earlier} if earlier else {})
         run_dir.write_run_record(record)
         todo.append(run)
     return todo

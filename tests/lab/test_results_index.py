@@ -64,10 +64,13 @@ def test_a_resumed_run_names_every_commit_it_trained_under(tmp_path):
     plan.pending_runs([planned], "pointmaze-1", second)  # nothing trained yet: a fresh start
     assert RunDir(planned.run_dir).read_run_record().earlier_commits is None
     RunDir(planned.run_dir).progress_file.write_text("{}")  # the first launch trained a part
-    plan.pending_runs([planned], "pointmaze-1", second)
+    plan.pending_runs([planned], "pointmaze-1", second)  # resumed on the same checkout
+    assert RunDir(planned.run_dir).read_run_record().earlier_commits is None
     plan.pending_runs([planned], "pointmaze-1", first)
     record = RunDir(planned.run_dir).read_run_record()
     assert (record.commit, record.earlier_commits) == ("a" * 40, ["b" * 40])
+    # a record written before that rule, naming its own commit as earlier, reads as one commit
+    assert commit_text(LaunchRecord(commit="a" * 40, earlier_commits=["a" * 40])) == "aaaaaaa"
     plan.pending_runs([planned], "pointmaze-1", second)
     record = RunDir(planned.run_dir).read_run_record()
     assert (record.commit, record.earlier_commits) == ("b" * 40, ["b" * 40, "a" * 40])
