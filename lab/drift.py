@@ -24,6 +24,24 @@ from pathlib import Path
 ANCHOR_INIT = "model.init_args.anchor_init"
 PRUNING = "trainer.callbacks[SubspacePruning].init_args."
 FIT_SUBCOMMAND_KEYS = ("ckpt_path", "weights_only")
+# the packages a saved configuration's classes may come from; any other is refused unimported
+CLASS_PACKAGES = ("hispo_pl", "lightning")
+
+
+def foreign_classes(config) -> list[str]:
+    """The ``class_path`` values of a parsed configuration outside :data:`CLASS_PACKAGES`:
+    a run file that names them is not parsed, so reading it imports nothing it names."""
+    found = []
+    if isinstance(config, dict):
+        path = config.get("class_path")
+        if isinstance(path, str) and path.split(".")[0] not in CLASS_PACKAGES:
+            found.append(path)
+        for value in config.values():
+            found += foreign_classes(value)
+    elif isinstance(config, list):
+        for value in config:
+            found += foreign_classes(value)
+    return found
 
 
 def family_resolved(settings: Mapping, family) -> dict:
@@ -100,10 +118,24 @@ def saved_settings(saved: Path) -> dict:
     ``fit`` subcommand (no settings of the run), which a configuration parsed without the
     subcommand does not take. A run saves its configuration with its preset and knob flags
     already written in, so the preset is not applied again (its overlay would undo a flag
-    that won over it); its name is kept."""
+    that won over it); its name is kept.
+
+    Raises:
+        UserError: the file names a class outside hispo-pl and Lightning (not imported), or
+            is refused as ``hispo-pl fit`` refuses a config file."""
     import yaml
 
+    from hispo_pl.config_files import check_config_files
+    from hispo_pl.errors import ConfigError
+
+    check_config_files(["--config", str(saved)])
     config = yaml.safe_load(Path(saved).read_text())
+    foreign = foreign_classes(config)
+    if foreign:
+        raise ConfigError(
+            f"names classes outside {' and '.join(CLASS_PACKAGES)} ({', '.join(foreign)}); "
+            "not imported"
+        )
     for key in FIT_SUBCOMMAND_KEYS:
         config.pop(key, None)
     preset = config.pop("preset", None)

@@ -95,3 +95,21 @@ def test_a_saved_config_that_today_refuses_is_one_line(tmp_path, capsys):
     out = capsys.readouterr().out
     assert code == 1
     assert "antmaze-1/hispo/seed0: cannot compare:" in out and "Traceback" not in out
+
+
+def test_a_saved_config_naming_a_foreign_class_is_refused_unimported(tmp_path, capsys, monkeypatch):
+    """Nothing a run file names is imported: a class outside hispo-pl and Lightning is named
+    in one line, and its module (importable here, and leaving a mark when imported) is never
+    loaded."""
+    mark = tmp_path / "imported"
+    (tmp_path / "lab_drift_probe.py").write_text(f"open({str(mark)!r}, 'w').close()\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+
+    def foreign(config):
+        config["trainer"]["logger"]["class_path"] = "lab_drift_probe.Logger"
+
+    root = _committed_copy(tmp_path / "results", foreign)
+    code = lab_main(["config-drift", "--grid", "paper", "--part", "antmaze-1", "--root", str(root)])
+    out = capsys.readouterr().out
+    assert code == 1 and not mark.exists()
+    assert "names classes outside hispo_pl and lightning (lab_drift_probe.Logger)" in out
