@@ -58,7 +58,8 @@ def label_offsets(
     placed: list[tuple[float, float, float, float]] = []
     offsets = []
     half = marker / 2
-    marks = [(px - half, py - half, px + half, py + half) for px, py in [*points, *obstacles]]
+    nearby = [*points, *obstacles]  # a label nearer another marker than its own reads as its
+    marks = [(px - half, py - half, px + half, py + half) for px, py in nearby]
     for (x, y), (w, h) in zip(points, sizes, strict=True):
         choice = None
         # first a place nearer its own point than any other; in a tight crowd, any free one
@@ -73,7 +74,7 @@ def label_offsets(
                     free = not any(_overlap(box, o) for o in placed + marks)
                     if free and ring:  # a leader line must not cross a label already placed
                         free = not any(_crosses((x, y), box, o) for o in placed)
-                    near = not attached or _nearest((x, y), box, points, marker)
+                    near = not attached or _nearest((x, y), box, nearby, marker)
                     if free and near and _within(box, bounds):
                         choice = (dx, dy, ring > 0 or not attached)
                         break

@@ -232,13 +232,23 @@ def test_a_reference_is_drawn_hollow_beside_each_method_and_no_label_covers_it()
     assert ax.get_xlim()[0] < 2.1 and ax.get_xlabel().endswith("hollow: the paper's")
     fig.draw_without_rendering()
     marks = ax.transData.transform(drawn) * 72 / fig.dpi
+    own = dict(zip([r.method for r in rows], ax.transData.transform(
+        [(r.means["MEM"], r.iqm[0]) for r in rows]) * 72 / fig.dpi, strict=True))  # fmt: skip
     for text in ax.texts:
         box = text.get_window_extent().extents * 72 / fig.dpi
         for mx, my in marks:
             assert not (box[0] < mx + 3.5 and mx - 3.5 < box[2] and box[1] < my + 3.5
                         and my - 3.5 < box[3]), text.get_text()  # fmt: skip
+            # and no name sits nearer a hollow marker than its own point
+            assert _box_distance((mx, my), box) >= _box_distance(own[text.get_text()], box)
     plain = iqm_vs_memory_figure(rows, "ours alone")
     assert not [line for line in plain.axes[0].lines if line.get_markerfacecolor() == "none"]
+
+
+def _box_distance(point, box) -> float:
+    dx = max(box[0] - point[0], 0.0, point[0] - box[2])
+    dy = max(box[1] - point[1], 0.0, point[1] - box[3])
+    return float(np.hypot(dx, dy))
 
 
 def test_labels_of_coincident_points_fan_out_around_them():

@@ -78,6 +78,51 @@ def test_the_papers_point_beside_ours_is_its_mean_over_the_rows_streams(tmp_path
     assert path == root / "grid-g" / beside_paper.BESIDE_FIGURE and path.stat().st_size > 0
 
 
+# the house grid's aggregate over its four first streams (aggregate-four-streams.md, as
+# committed when the beside-paper figure was added): method -> MEM, (IQM, low, high)
+FOUR_STREAMS = {
+    "sc1": (1.0, (53.5, 52.3, 55.8)), "scn": (4.0, (98.4, 98.1, 98.7)),
+    "ft1": (1.0, (53.8, 50.9, 57.8)), "ftn": (4.0, (98.2, 97.6, 98.6)),
+    "frz": (1.0, (42.2, 40.6, 44.5)), "l2": (2.0, (50.1, 47.5, 53.2)),
+    "ewc": (3.0, (57.2, 54.2, 59.5)), "pnn": (9.15, (99.0, 98.8, 99.4)),
+    "hispo": (3.37, (98.2, 97.5, 99.3)), "csp": (1.08, (41.2, 40.5, 42.1)),
+    "cspo": (3.5, (98.9, 98.5, 99.3)), "hilow": (1.28, (93.4, 90.8, 96.0)),
+}  # fmt: skip
+
+
+def test_no_name_of_the_crowd_sits_nearer_a_hollow_marker_than_its_own_point():
+    """The house grid beside the paper: around MEM 3.4–4.0 HiSPO, CSPO, FTN and SCN crowd with
+    the paper's hollow HiSPO, FTN and SCN; CSPO's name once sat under FTN's hollow marker and
+    read as its."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from hispo_pl.perf_memory_figures import iqm_vs_memory_figure
+
+    streams = ["pointmaze-1", "pointmaze-2", "videogame-1", "videogame-2"]
+    rows = [SimpleNamespace(method=m, streams=streams, means={"MEM": mem}, iqm=iqm)
+            for m, (mem, iqm) in FOUR_STREAMS.items()]  # fmt: skip
+    points = beside_paper.paper_points(rows)
+    fig = iqm_vs_memory_figure(rows, "beside", points, "the paper's")
+    (ax,) = fig.axes
+    fig.draw_without_rendering()
+    scale = 72 / fig.dpi
+
+    def distance(point, box) -> float:
+        dx = max(box[0] - point[0], 0.0, point[0] - box[2])
+        return float(np.hypot(dx, max(box[1] - point[1], 0.0, point[1] - box[3])))
+
+    hollow = ax.transData.transform(list(points.values())) * scale
+    crowd = [t for t in ax.texts if t.get_text() in ("hispo", "cspo", "ftn", "scn")]
+    assert len(crowd) == 4 and {"hispo", "ftn", "scn"} <= set(points)
+    for text in crowd:
+        mem, (per, _, _) = FOUR_STREAMS[text.get_text()]
+        box = text.get_window_extent().extents * scale
+        mine = distance(ax.transData.transform((mem, per)) * scale, box)
+        assert all(distance(h, box) >= mine for h in hollow), text.get_text()
+
+
 def test_beside_paper_puts_the_papers_figure_next_to_ours(tmp_path):
     shutil.copytree(RESULTS / "pointmaze-1/frz", tmp_path / "pointmaze-1/frz")
     text = beside_paper.beside_paper_markdown(gp.Committed(tmp_path))
