@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hispo_pl.benchmark.markdown import cell, code_cell
-from hispo_pl.benchmark.plan import earlier_than
+from hispo_pl.benchmark.plan import launch_commits
 from hispo_pl.io import atomic_write_text
 from hispo_pl.results import LaunchRecord
 from hispo_pl.rundir import RunDir
@@ -82,9 +82,9 @@ def commit_text(record: LaunchRecord) -> str:
     after it), else the one that committed it."""
     if record.commit:
         made = short_commit(record.commit)
-        # the commit it resumed on is not an earlier one (as a run.json before that rule says)
-        commits = earlier_than(record.earlier_commits or [], record.commit)
-        earlier = [short_commit(c) for c in commits]
+        # every launch's commit but the last, once per change (a run.json written before
+        # plan.earlier_than may name its own commit as an earlier one)
+        earlier = [short_commit(c) for c in launch_commits(record)[:-1]]
         return f"{made} (resumed; earlier: {', '.join(earlier)})" if earlier else made
     if record.committed_in:
         return f"{record.committed_in} (committed)"
