@@ -242,10 +242,9 @@ def iqm_vs_memory_figure(
         point, low, high = row.iqm
         _draw_method(ax, row.method, row.means["MEM"], point,
                      yerr=[[point - low], [high - point]])  # fmt: skip
-    beside = {r.method: (reference or {})[r.method] for r in drawn if r.method in (reference or {})}
-    for row in drawn:
-        if row.method not in beside:
-            continue
+    reference = reference or {}
+    beside = {r.method: reference[r.method] for r in drawn if r.method in reference}
+    for row in (r for r in drawn if r.method in beside):
         style, (mem, per) = method_style(row.method), beside[row.method]
         ax.plot([row.means["MEM"], mem], [row.iqm[0], per], ls=":", lw=0.8, color=style["color"])
         ax.plot(mem, per, ls="none", marker=style["fmt"], mfc="none", mec=style["color"],
