@@ -164,7 +164,7 @@ def keep_last_config_text(text: str, run_dir: Path) -> str:
     return rewritten_config_text(text, run_dir, _keep_last(text, run_dir).from_sibling)
 
 
-def _rollout_evaluation(config: dict):
+def run_rollout_evaluation(config: dict):
     """The run's end-of-task evaluation callback, built from its saved arguments."""
     from ..callbacks import RolloutEvaluation
 
@@ -249,7 +249,7 @@ def write_derived_tasks(
     keep_last = _keep_last(src.config_file.read_text(), src.path)
     config_text = keep_last_config_text(src.config_file.read_text(), out.path)
     config = yaml.safe_load(config_text)
-    evaluation = _rollout_evaluation(config)
+    evaluation = run_rollout_evaluation(config)
     stream = [parse_task(t) for t in results.stream]
     R = [list(row) for row in results.R]
     wall, phases, memory, settings = [], [], [], None

@@ -26,7 +26,11 @@ class RolloutEvaluation(KeyedState):
     The latest evaluation of the current task goes to ``task_record.evaluation`` (the CLI
     prints it).
 
-    Environments are built once per task and reused for the whole run.
+    Environments are built once per task and reused for the whole run. Rollouts are seeded and
+    deterministic, so a task evaluated again with the very tensors it acted with before (the
+    module's :meth:`~hispo_pl.modules.GoalConditionedBC.acting_digest`: a network per task that
+    did not train again, a subspace that pruned what it grew) repeats the earlier result,
+    which is reused instead of rolled out: a row of R costs the tasks whose policy changed.
 
     Args:
         eval_every: steps between evaluations on the current task (0: only at the end).
@@ -49,6 +53,7 @@ class RolloutEvaluation(KeyedState):
             progress,
         )
         self._evaluators: dict[Task, RolloutEvaluator] = {}
+        self._measured: dict[tuple[Task, str], RolloutResult] = {}  # by task and acting state
 
     def _run(
         self,
@@ -57,13 +62,26 @@ class RolloutEvaluation(KeyedState):
         task_index: int | None,
         record: bool = False,
         progress: bool | ProgressPrinter = False,
+        reuse: bool = False,
     ) -> RolloutResult:
+        """``task``'s rollouts with ``pl_module`` acting as task ``task_index``; ``reuse``: an
+        earlier result with the same acting state stands for them (and is kept for later)."""
         task = parse_task(task)
+        known = reuse and task_index is not None
+        digest = pl_module.acting_digest(task_index) if known else None
+        earlier = self._measured.get((task, digest)) if digest is not None else None
+        if earlier is not None and (earlier.trajectories is not None or not record):
+            if isinstance(progress, ProgressPrinter):
+                progress.update(self.episodes)
+            return earlier
         with pl_module.task_record.timed("evaluation"), eval_mode(pl_module):
             if task not in self._evaluators:
                 self._evaluators[task] = RolloutEvaluator(task, self.episodes, self.seed)
             policy = module_policy(pl_module, task=task_index)
-            return self._evaluators[task].run(policy, progress=progress, record=record)
+            result = self._evaluators[task].run(policy, progress=progress, record=record)
+        if digest is not None:
+            self._measured[(task, digest)] = result
+        return result
 
     def _evaluate_current(
         self, trainer: L.Trainer, pl_module: L.LightningModule, at_end: bool = False
@@ -92,16 +110,24 @@ class RolloutEvaluation(KeyedState):
 
     def _evaluate_stream(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         i, tasks = pl_module.task_index, trainer.datamodule.tasks
-        label = f"task {task_label(i)}/{len(tasks)}: evaluating {len(tasks)} tasks"
-        with ProgressPrinter(label, len(tasks) * self.episodes, "episodes") as done:
-            results = [
-                self._run(task, pl_module, j, record=j == i, progress=done)
-                for j, task in enumerate(tasks)
-            ]
+        results = self.evaluate_row(tasks, pl_module, i)
         row = [r.success for r in results]
         pl_module.task_record.success_row = row
         pl_module.task_record.rollouts = results[i]  # the current task's, with their paths
         self._record(pl_module, {"success": row[i], "step": trainer.global_step})
+
+    def evaluate_row(
+        self, tasks: list[str | Task], pl_module: L.LightningModule, i: int
+    ) -> list[RolloutResult]:
+        """Row ``i`` of R as task ``i``'s end measures it: ``pl_module`` acting as each task of
+        ``tasks`` on it, reusing this instance's earlier rollouts of an unchanged policy; task
+        ``i``'s keep their paths (for its picture)."""
+        label = f"task {task_label(i)}/{len(tasks)}: evaluating {len(tasks)} tasks"
+        with ProgressPrinter(label, len(tasks) * self.episodes, "episodes") as done:
+            return [
+                self._run(task, pl_module, j, record=j == i, progress=done, reuse=True)
+                for j, task in enumerate(tasks)
+            ]
 
     def evaluate_task(
         self, task: str | Task, pl_module: L.LightningModule, task_index: int

@@ -293,6 +293,40 @@ class GoalConditionedBC(CapturedSteps, L.LightningModule):
         heads); the one thing a method adds to acting."""
         raise NotImplementedError
 
+    def acting_state(self, task: int) -> dict[str, Tensor] | None:
+        """Every tensor that acting on task ``task`` reads, by name; None where the method
+        does not say. Two equal states act alike, so a rollout measured with one stands for
+        the other (:class:`~hispo_pl.callbacks.RolloutEvaluation` reuses it). Here: the
+        backbone's state, for a method whose heads are called plainly; a method whose
+        ``forward`` reads more (weights over anchors, a column) says what."""
+        policy, forward = self.acting_policy(task)
+        return dict(policy.state_dict()) if forward is None else None
+
+    def acting_digest(self, task: int) -> str | None:
+        """:meth:`acting_state` as one hash (None where it is None)."""
+        state = self.acting_state(task)
+        return None if state is None else state_digest(state)
+
+
+def state_digest(state: dict[str, Tensor]) -> str:
+    """A hash of named tensors: their names, dtypes, shapes and every byte of their values, so
+    equal digests mean bit-for-bit equal tensors.
+
+        >>> import torch
+        >>> state_digest({"w": torch.ones(2)}) == state_digest({"w": torch.ones(2)})
+        True
+        >>> state_digest({"w": torch.ones(2)}) == state_digest({"w": torch.ones(2, 1)})
+        False
+    """
+    import hashlib
+
+    h = hashlib.sha1()
+    for name in sorted(state):
+        tensor = state[name].detach().cpu().contiguous().reshape(-1)
+        h.update(f"{name}|{tensor.dtype}|{tuple(state[name].shape)}|".encode())
+        h.update(tensor.view(torch.uint8).numpy().tobytes())
+    return h.hexdigest()
+
 
 class HBC(GoalConditionedBC):
     """Goal-conditioned BC on one task: one backbone network (hierarchical by default), of

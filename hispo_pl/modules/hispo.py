@@ -282,6 +282,13 @@ class HiSPO(GoalConditionedBC):
 
         return self.policies, forward
 
+    def acting_state(self, task: int) -> dict[str, Tensor]:
+        """Every anchor of every subspace and task ``task``'s weights over them."""
+        state = dict(self.policies.state_dict())
+        for subspace in self.subspace_names:
+            state[f"alpha.{subspace}"] = self.alpha_for(subspace, task)
+        return state
+
     @property
     def n_tasks(self) -> int:
         return self.task_alphas(self.subspace_names[0]).shape[0]

@@ -15,6 +15,8 @@ for the lateral design (linear, bias-free, zero-initialised).
 
 from __future__ import annotations
 
+import re
+
 import torch
 from torch import Tensor
 
@@ -22,6 +24,14 @@ from ..nn.hierarchy import Forward, HierarchicalPolicy
 from ..nn.progressive import ProgressivePolicy
 from .columns import record_task
 from .hbc import GoalConditionedBC
+
+# a column's own tensors (``columns.<k>.``) and its laterals (``laterals.<k - 1>.``)
+_COLUMN = re.compile(r"(?:^|\.)(columns|laterals)\.(\d+)\.")
+
+
+def _column_of(match: re.Match) -> int:
+    """The column a state entry belongs to, from :data:`_COLUMN`'s match."""
+    return int(match.group(2)) + (match.group(1) == "laterals")
 
 
 class PNN(GoalConditionedBC):
@@ -106,6 +116,17 @@ class PNN(GoalConditionedBC):
         """Every head runs its columns up to task ``task``'s."""
         column = self.column_for(task)
         return self.net, lambda name, x: self.net[name](x, column)
+
+    def acting_state(self, task: int) -> dict[str, Tensor]:
+        """The columns up to task ``task``'s and their laterals (a later column is not run),
+        and which column acts."""
+        column = self.column_for(task)
+        state = {"column": torch.tensor(column)}
+        for name, tensor in self.net.state_dict().items():
+            own = _COLUMN.search(name)
+            if own is None or _column_of(own) <= column:
+                state[name] = tensor
+        return state
 
     # --- checkpoints ----------------------------------------------------------------------
 
