@@ -160,7 +160,10 @@ CLAIMS: tuple[Claim, ...] = (
         "Ablation: HiSPO performs as well as CSPO with less memory",
         "Table 2",
         "HiSPO 80.1 / 2.2, CSPO 77.6 / 2.3",
-        ablation(lambda s: not below(s["hispo"], s["cspo"]) and s["hispo"].mem < s["cspo"].mem),
+        ablation(
+            lambda s: not below(s["hispo"], s["cspo"]) and s["hispo"].mem < s["cspo"].mem,
+            ("cspo", "hispo"),
+        ),
         "CSPO and HiSPO on both AntMaze streams",
     ),
     Claim(

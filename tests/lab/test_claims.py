@@ -123,3 +123,16 @@ def test_transfer_rests_only_on_the_seeds_with_a_from_scratch_run():
     assert verdict == "provisionally holds (1 seed of 3)"
     per = next(c for c in claims.CLAIMS if c.text.startswith("PointMaze: FTN and SCN"))
     assert per.test(_Runs({"pointmaze-1": {"hispo": [0.99, 0.97]}})) is None  # no SCN, FTN
+
+
+def test_a_verdict_rests_only_on_the_seeds_of_the_methods_it_compares():
+    ablation = {"hispo": [0.80, 0.81, 0.79], "cspo": [0.82, 0.80, 0.81], "csp": [0.3]}
+    runs = _Runs({"antmaze-1": ablation, "antmaze-2": ablation})
+    by_text = {c.text: c for c in claims.CLAIMS}
+    figures, verdict = by_text["Ablation: HiSPO performs as well as CSPO with less memory"].test(
+        runs
+    )
+    assert "csp:" not in figures and figures.endswith("(3 seeds each)")
+    assert verdict == "does not hold"  # equal MEM; CSP's one seed does not make it provisional
+    _, verdict = by_text["Ablation: CSP is far below CSPO and HiSPO"].test(runs)
+    assert verdict == "provisionally holds (1 seed of 3)"
