@@ -24,7 +24,7 @@ from hispo_pl.modules import GoalConditionedBC
 from hispo_pl.rundir import RunDir
 
 
-class Row:
+class MeasuredRows:
     """One way of measuring rows: its own evaluation callback (whose reuse spans the rows),
     the rows, the rollouts each ran and its seconds."""
 
@@ -44,12 +44,12 @@ class Row:
         self.ran.append(len(calls) - before)
 
 
-def measure_rows(run: RunDir) -> tuple[Row, Row]:
+def measure_rows(run: RunDir) -> tuple[MeasuredRows, MeasuredRows]:
     """Every row of ``run`` measured reusing rollouts and then every entry, row by row (so the
     two see the same load on the machine)."""
     config = yaml.safe_load(run.config_file.read_text()) or {}
     tasks = list(run.stream_results().stream)
-    reused, every = Row(config, reuse=True), Row(config, reuse=False)
+    reused, every = MeasuredRows(config, True), MeasuredRows(config, False)
     calls: list[int] = []
     rolled = RolloutEvaluator.run
 

@@ -132,9 +132,9 @@ class PNN(GoalConditionedBC):
 
     def restore_structure(self, state_dict: dict[str, Tensor]) -> None:
         """As many columns and mapped tasks as the state dict holds, before it loads."""
-        prefix = f"net.{self.net.names[0]}.net.columns."
-        columns = {int(k[len(prefix) :].split(".")[0]) for k in state_dict if k.startswith(prefix)}
-        while self.n_columns < len(columns):
+        found = (_COLUMN.search(k) for k in state_dict if k.startswith("net."))
+        columns = 1 + max((_column_of(m) for m in found if m is not None), default=0)
+        while self.n_columns < columns:
             for policy in self._policies():
                 policy.net.add_column()
         self.task_column = torch.zeros_like(state_dict["task_column"])
