@@ -4,13 +4,17 @@
 #                 other, print R, PER, MEM, decisions
 #   make test   - create .venv if missing, add the tests' extras (.[dev]), run the test suite
 # torch is pinned to the build the suite is checked with; pyproject keeps the range open for
-# users. Override with `make TORCH_PIN=torch==X.Y.Z`. On a CPU-only machine pip resolves the pin
+# users. Override with `make TORCH_PIN=torch==X.Y.Z`. The physics and data stack is pinned too
+# (SIM_PINS): another MuJoCo or NumPy collects other expert episodes and rolls out other
+# successes, so a run made here can be repeated on a fresh machine only at the same versions
+# (docs/data.md, "Reproducing a dataset"). On a CPU-only machine pip resolves the pin
 # to a CUDA build (several GB): `make demo TORCH_INDEX=https://download.pytorch.org/whl/cpu`
 # takes the CPU wheel.
 PYTHON ?= python3
 VENV ?= .venv
 TORCH_PIN ?= torch==2.13.0
 TORCH_INDEX ?=
+SIM_PINS ?= mujoco==4.0.1 numpy==2.4.6 gymnasium==1.4.0 gymnasium-robotics==1.4.2 minari==0.5.4
 # test processes side by side, one torch thread each (0: one process)
 TEST_WORKERS ?= 2
 BIN := $(VENV)/bin
@@ -27,6 +31,8 @@ $(INSTALLED): pyproject.toml
 	$(BIN)/python -m pip install -q --upgrade pip
 	@echo "[make] installing $(TORCH_PIN)$(if $(TORCH_INDEX), from $(TORCH_INDEX))"
 	$(BIN)/python -m pip install -q "$(TORCH_PIN)" $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX))
+	@echo "[make] installing $(SIM_PINS)"
+	$(BIN)/python -m pip install -q $(SIM_PINS)
 	@echo "[make] installing hispo-pl (editable) with what the demo needs"
 	$(BIN)/python -m pip install -q -e .
 	touch $(INSTALLED)

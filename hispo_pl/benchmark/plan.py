@@ -296,6 +296,35 @@ def foreign_runs(runs: Sequence[PlannedRun], stream: str) -> list[str]:
 CODE_RECORDERS: list[Callable[[], dict]] = []
 
 
+# the packages whose versions move a run's numbers: torch's arithmetic, and the physics the
+# datasets are collected and the policies rolled out in (another MuJoCo, other episodes)
+RESULT_PACKAGES = (
+    "torch",
+    "lightning",
+    "numpy",
+    "mujoco",
+    "gymnasium",
+    "gymnasium-robotics",
+    "minari",
+)
+
+
+def processor_name() -> str | None:
+    """The CPU's model name (``/proc/cpuinfo``; ``platform.processor()`` elsewhere): torch's
+    CPU kernels differ between processors, and with them the last bits of a training run."""
+    import platform
+
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as info:
+            for line in info:
+                key, _, value = line.partition(":")
+                if key.strip() == "model name":
+                    return value.strip()
+    except OSError:
+        pass
+    return platform.processor() or None
+
+
 def provenance() -> LaunchRecord:
     """Where a run is made, for the run's ``run.json``: hispo-pl's version and the machine,
     then what each of :data:`CODE_RECORDERS` adds."""
@@ -314,9 +343,10 @@ def provenance() -> LaunchRecord:
         "version": version("hispo-pl"),
         "machine": {
             "platform": platform.platform(),
+            "processor": processor_name(),
             "cpus": cpu_count(),
             "python": platform.python_version(),
-            "torch": version("torch"),
+            **{package: version(package) for package in RESULT_PACKAGES},
         },
     }
     for recorder in CODE_RECORDERS:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Literal
 
 import lightning as L
@@ -286,7 +287,10 @@ class TaskDataModule(L.LightningDataModule):
 
     def setup(self, stage: str | None = None) -> None:
         if self.data is None:
-            self.data = load_episodes(self.dataset_for(self.task)).for_task(self.task)
+            stored = load_episodes(self.dataset_for(self.task))
+            if self.dataset_use is not None:
+                self.dataset_use = replace(self.dataset_use, digest=stored.content_digest())
+            self.data = stored.for_task(self.task)
             if self.holdout > 0 and self.data.n_episodes < 2:
                 raise ConfigError(
                     f"{self.task} has {self.data.n_episodes} episode: --data.holdout "

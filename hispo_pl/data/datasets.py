@@ -7,6 +7,7 @@ arrays at load time by the same pure transforms the env wrapper uses.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 from dataclasses import dataclass, replace
@@ -88,9 +89,12 @@ class DatasetUse:
 
     dataset: str  # Minari id
     episodes: int
+    # :meth:`EpisodeArrays.content_digest` of the stored episodes, once they are loaded
+    digest: str | None = None
 
     def as_json(self) -> dict:
-        return {"dataset": self.dataset, "episodes": self.episodes}
+        used = {"dataset": self.dataset, "episodes": self.episodes}
+        return used | ({"digest": self.digest} if self.digest else {})
 
     def __str__(self) -> str:
         return f"{self.dataset} ({self.episodes} episodes)"
@@ -158,6 +162,23 @@ class EpisodeArrays:
     # [N, goal_dim] float32, the position as the agent senses it in the arrays' variant
     # (:func:`~hispo_pl.tasks.agent_position`, set by :meth:`for_task`); None: ``positions``
     agent_positions: np.ndarray | None = None
+
+    def content_digest(self) -> str:
+        """SHA-256 (16 hex digits) of the arrays' contents. A dataset is regenerated on every
+        new machine, and the physics library's version changes what the expert collects; two
+        runs whose digests agree trained on the same episodes."""
+        digest = hashlib.sha256()
+        for array in (
+            self.observations,
+            self.positions,
+            self.actions,
+            self.episode_end,
+            self.sample_index,
+            self.segment_end,
+        ):
+            digest.update(str((array.dtype.str, array.shape)).encode())
+            digest.update(np.ascontiguousarray(array).tobytes())
+        return digest.hexdigest()[:16]
 
     @property
     def n_episodes(self) -> int:

@@ -157,6 +157,22 @@ def _results(diag, final, mem=None, anchors=None, minutes=1.0) -> StreamResults:
     return StreamResults.from_json(out)
 
 
+def test_a_launch_records_the_versions_that_move_its_numbers():
+    """run.json names the physics and arithmetic a run was made with: the same code and seed on
+    another MuJoCo collects other episodes and rolls out other successes."""
+    from importlib.metadata import version
+
+    from hispo_pl.benchmark import plan
+
+    machine = plan.provenance().machine
+    for package in ("torch", "numpy", "mujoco", "gymnasium-robotics", "minari"):
+        assert machine[package] == version(package)
+    # and the processor, whose kernels set a training run's last bits
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.exists() and "model name" in cpuinfo.read_text():
+        assert machine["processor"] and machine["processor"] in cpuinfo.read_text()
+
+
 def test_scratch_method_for():
     assert bm.scratch_method_for("hispo", {"hispo", "sc1", "scn"}) == "scn"
     assert bm.scratch_method_for("hispo", {"hispo", "sc1", "bc-scn"}) == "sc1"

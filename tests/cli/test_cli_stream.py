@@ -12,6 +12,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from hispo_pl.cli import main
 from hispo_pl.config import BackboneConfig
+from hispo_pl.data.datasets import load_episodes
 from hispo_pl.metrics import module_bytes
 from hispo_pl.modules.hbc import HBC
 
@@ -292,7 +293,8 @@ def test_a_stream_on_a_minari_dataset_names_it_and_its_episodes(tiny_umaze, tmp_
     assert "stream pointmaze-umaze-N -> pointmaze-umaze-PO, from umaze-v1 (5 episodes)" in out
     assert "[500]" not in out
     results = json.loads((tmp_path / "pointmaze-1" / "seed0" / "results.json").read_text())
-    assert results["datasets"] == [{"dataset": "umaze-v1", "episodes": 5}] * 2
+    digest = load_episodes("umaze-v1").content_digest()
+    assert results["datasets"] == [{"dataset": "umaze-v1", "episodes": 5, "digest": digest}] * 2
     assert results["stream"] == stream  # the specs as given: a rerun resumes the same run
 
 
@@ -311,8 +313,9 @@ def test_the_stream_line_names_a_named_dataset_where_a_task_read_one():
 
 def test_a_stream_on_our_data_records_it_too(tiny_run):
     results, _ = tiny_run
-    local = {"dataset": "hispo/pointmaze-umaze-expert-v0", "episodes": 3}
-    assert results["datasets"] == [local, local]
+    digest = load_episodes("pointmaze-umaze-N[3]").content_digest()
+    local = {"dataset": "hispo/pointmaze-umaze-expert-v0", "episodes": 3, "digest": digest}
+    assert results["datasets"] == [local, local]  # PO reads N's stored episodes
 
 
 def test_each_tasks_datamodule_takes_the_parsed_tasks(monkeypatch):

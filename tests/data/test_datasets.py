@@ -117,6 +117,25 @@ def test_episode_arrays_invariants(tiny_umaze):
     assert step[data.sample_index].max() < 0.5
 
 
+def test_the_content_digest_names_the_episodes_not_the_load(tiny_umaze):
+    """Loading the stored data again gives the same digest; one changed action value, or the
+    same values split into other episodes, gives another: the digest tells two runs' data
+    apart when the datasets were regenerated on different machines."""
+    from dataclasses import replace
+
+    digest = tiny_umaze.content_digest()
+    assert re.fullmatch(r"[0-9a-f]{16}", digest)
+    assert load_episodes(f"pointmaze-umaze-N[{TINY_EPISODES}]").content_digest() == digest
+    actions = tiny_umaze.actions.copy()
+    actions[tiny_umaze.sample_index[3], 1] += 1e-6
+    assert replace(tiny_umaze, actions=actions).content_digest() != digest
+    ends = tiny_umaze.episode_end.copy()
+    ends[: UMAZE_STEPS + 1] = 2 * UMAZE_STEPS + 1  # the first two episodes as one
+    assert replace(tiny_umaze, episode_end=ends).content_digest() != digest
+    first = load_episodes("pointmaze-umaze-N[1]")
+    assert first.content_digest() != digest
+
+
 def test_load_episodes_takes_the_first_k_episodes(tiny_umaze):
     rows = UMAZE_STEPS + 1
     for k in (1, 2, TINY_EPISODES - 1):
@@ -446,6 +465,8 @@ def test_a_minari_id_without_a_namespace_trains_a_task(minari_home):
     assert dm.describe() == "pointmaze-umaze-N from umaze-v0 (4 episodes)"
     dm.setup("fit")
     assert dm.data.n_episodes == 4
+    # once read, the use names the stored episodes' digest (before the variant's transform)
+    assert dm.dataset_use == DatasetUse("umaze-v0", 4, load_episodes("umaze-v0").content_digest())
 
 
 def test_a_name_that_is_neither_is_refused_when_configured():
