@@ -60,13 +60,15 @@ def fit_command(argv: list[str]) -> str:
 
 
 def machine_text(machine: dict | None) -> str:
-    """``platform, N CPUs, torch V`` from a run's recorded machine."""
+    """``platform, N CPUs, torch V, MuJoCo V`` from a run's recorded machine (MuJoCo where it
+    was recorded: another version collects other data and rolls out other successes)."""
     if not machine:
         return "not recorded"
     platform = machine.get("platform")
     parts = [str(platform) if platform else None]
     parts.append(f"{machine['cpus']} CPUs" if machine.get("cpus") else None)
     parts.append(f"torch {machine['torch']}" if machine.get("torch") else None)
+    parts.append(f"MuJoCo {machine['mujoco']}" if machine.get("mujoco") else None)
     return ", ".join(p for p in parts if p)
 
 

@@ -203,7 +203,7 @@ def test_a_manifest_row_reads_the_runs_own_run_json(tmp_path):
     made.mkdir(parents=True)
     (made / "results.json").write_text("{}")
     argv = ["-m", "hispo_pl.cli", "fit", "--config", "/work/x/configs/streams/pointmaze-1.yaml"]
-    machine = {"platform": "Linux-6", "cpus": 2, "python": "3.11", "torch": "2.13.0+cpu"}
+    machine = {"platform": "Linux-6", "cpus": 2, "torch": "2.13.0+cpu", "mujoco": "4.0.1"}
     record = {"commit": "89f9f6fab9ca098775c946e85840a779acbebc32+dirty", "machine": machine}
     write_run_files(made, launch={**record, "argv": argv})
     older = tmp_path / "scn" / "seed0"
@@ -219,7 +219,7 @@ def test_a_manifest_row_reads_the_runs_own_run_json(tmp_path):
         (
             "hispo/seed0",
             "89f9f6f+dirty",
-            "Linux-6, 2 CPUs, torch 2.13.0+cpu",
+            "Linux-6, 2 CPUs, torch 2.13.0+cpu, MuJoCo 4.0.1",
             "`hispo-pl fit --config configs/streams/pointmaze-1.yaml`",
         ),
         ("sc1/seed0", "not recorded", "not recorded", "not recorded"),
