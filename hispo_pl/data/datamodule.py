@@ -9,6 +9,7 @@ import lightning as L
 import torch
 from torch.utils.data import DataLoader
 
+from ..console import say
 from ..errors import ConfigError
 from ..task_families import HIGH_INPUTS, LOW_INPUTS
 from ..tasks import Task, parse_stream, parse_task, unseen_variant_tasks, unseen_variants_message
@@ -16,6 +17,7 @@ from .batch_stream import _Batches
 from .datasets import (
     DatasetUse,
     EpisodeArrays,
+    collected_in_other_physics,
     dataset_id_of,
     dataset_source,
     load_episodes,
@@ -36,6 +38,25 @@ def _input_choice(flag: str, value: str, choices: dict) -> str:
             f"--data.{flag} must be family or one of {', '.join(choices)}, got {value!r}"
         )
     return value
+
+
+_WARNED_OF_PHYSICS: set[str] = set()
+
+
+def warn_of_other_physics(ds) -> None:
+    """Say once per process when a dataset was collected on another MuJoCo than this run rolls
+    out on: its episodes are not what generating it here would give, and the expert moved in
+    other physics than the policies are evaluated in."""
+    dataset_id = ds.spec.dataset_id
+    mismatch = collected_in_other_physics(ds)
+    if mismatch is None or dataset_id in _WARNED_OF_PHYSICS:
+        return
+    _WARNED_OF_PHYSICS.add(dataset_id)
+    say(
+        f"{dataset_id} was collected on {mismatch}: this run's rollouts move in other "
+        "physics than its expert did, and the data are not what generating it here makes "
+        "(`hispo-pl data generate ... --overwrite`; docs/data.md, Reproducing a dataset)"
+    )
 
 
 class TaskDataModule(L.LightningDataModule):
@@ -273,6 +294,7 @@ class TaskDataModule(L.LightningDataModule):
         ds, episodes = open_dataset(self.dataset_for(self.task))
         count = ds.total_episodes if episodes is None else len(episodes)
         self.dataset_use = DatasetUse(ds.spec.dataset_id, count)
+        warn_of_other_physics(ds)
 
     def describe(self) -> str:
         """The task as the console names it: its spec, or, when a Minari dataset is named for

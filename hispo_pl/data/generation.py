@@ -119,7 +119,7 @@ def package_requirements() -> list[str]:
     from importlib.metadata import PackageNotFoundError, version
 
     pins = []
-    for package in ("hispo-pl", "gymnasium", "gymnasium-robotics", "mujoco"):
+    for package in ("hispo-pl", "gymnasium", "gymnasium-robotics", "mujoco", "numpy"):
         try:
             pins.append(f"{package}=={version(package)}")
         except PackageNotFoundError:

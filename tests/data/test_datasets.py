@@ -244,6 +244,38 @@ def test_generate_missing_leaves_stored_data_and_minari_ids_alone(monkeypatch, t
     assert asked == [("pointmaze-umaze", 700)]  # more than the default: the task's count
 
 
+def test_other_physics_is_named_once_per_dataset(tiny_umaze, monkeypatch, capsys):
+    """A dataset collected on another MuJoCo than the installed one trains and evaluates
+    anyway, with one line that names both versions, said once however many tasks read it;
+    the packages a dataset pinned alike, or did not pin, say nothing."""
+    from hispo_pl.data import datamodule, datasets
+
+    assert datasets.physics_mismatch(["gymnasium==1.0"], {"mujoco": "4.0.1"}) is None
+    assert datasets.physics_mismatch(["mujoco==4.0.1"], {"mujoco": "4.0.1"}) is None
+    assert datasets.physics_mismatch(None, {"mujoco": "4.0.1"}) is None
+    recorded = dict(
+        pin.split("==") for pin in minari.load_dataset(UMAZE_ID).storage.metadata["requirements"]
+    )
+    for task in ("pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"):
+        TaskDataModule(task=task, holdout=0.0).prepare_data()
+    assert "collected on" not in capsys.readouterr().out  # made here: nothing to say
+
+    monkeypatch.setattr(datamodule, "_WARNED_OF_PHYSICS", set())
+    real = datasets.installed_version
+    monkeypatch.setattr(
+        datasets, "installed_version", lambda p: "0.0.1" if p == "mujoco" else real(p)
+    )
+    for task in ("pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"):
+        TaskDataModule(task=task, holdout=0.0).prepare_data()
+    said = [line for line in capsys.readouterr().out.splitlines() if "collected on" in line]
+    assert said == [
+        f"[hispo-pl] {UMAZE_ID} was collected on mujoco {recorded['mujoco']} (installed: "
+        "0.0.1): this run's rollouts move in other physics than its expert did, and the data "
+        "are not what generating it here makes (`hispo-pl data generate ... --overwrite`; "
+        "docs/data.md, Reproducing a dataset)"
+    ]
+
+
 # --- generation: reuse and resumability --------------------------------------------------
 
 
