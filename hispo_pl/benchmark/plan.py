@@ -296,19 +296,6 @@ def foreign_runs(runs: Sequence[PlannedRun], stream: str) -> list[str]:
 CODE_RECORDERS: list[Callable[[], dict]] = []
 
 
-# the packages whose versions move a run's numbers: torch's arithmetic, and the physics the
-# datasets are collected and the policies rolled out in (another MuJoCo, other episodes)
-RESULT_PACKAGES = (
-    "torch",
-    "lightning",
-    "numpy",
-    "mujoco",
-    "gymnasium",
-    "gymnasium-robotics",
-    "minari",
-)
-
-
 def processor_name() -> str | None:
     """The CPU's model name (``/proc/cpuinfo``; ``platform.processor()`` elsewhere): torch's
     CPU kernels differ between processors, and with them the last bits of a training run."""
@@ -328,25 +315,19 @@ def processor_name() -> str | None:
 def provenance() -> LaunchRecord:
     """Where a run is made, for the run's ``run.json``: hispo-pl's version and the machine,
     then what each of :data:`CODE_RECORDERS` adds."""
-    import importlib.metadata
     import platform
 
+    from ..packages import RESULT_PACKAGES, installed_version
     from .parser import cpu_count
 
-    def version(name: str) -> str | None:
-        try:
-            return importlib.metadata.version(name)
-        except importlib.metadata.PackageNotFoundError:
-            return None
-
     made = {
-        "version": version("hispo-pl"),
+        "version": installed_version("hispo-pl"),
         "machine": {
             "platform": platform.platform(),
             "processor": processor_name(),
             "cpus": cpu_count(),
             "python": platform.python_version(),
-            **{package: version(package) for package in RESULT_PACKAGES},
+            **{package: installed_version(package) for package in RESULT_PACKAGES},
         },
     }
     for recorder in CODE_RECORDERS:

@@ -302,19 +302,6 @@ def load_episodes(source: str | Task) -> EpisodeArrays:
     return episodes_to_arrays(ds.iterate_episodes(episodes), ds.spec.dataset_id)
 
 
-# the packages whose versions change what an expert collects and what a rollout sees
-PHYSICS_PACKAGES = ("mujoco", "gymnasium-robotics")
-
-
-def installed_version(package: str) -> str | None:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version(package)
-    except PackageNotFoundError:
-        return None
-
-
 def physics_mismatch(requirements, installed) -> str | None:
     """Which physics packages a dataset was collected with (its Minari ``requirements``, pip
     pins such as ``mujoco==3.14.0``) differ from ``installed`` (package -> version), or None;
@@ -324,6 +311,8 @@ def physics_mismatch(requirements, installed) -> str | None:
         >>> physics_mismatch(["mujoco==3.14.0", "gymnasium==1.4.0"], {"mujoco": "4.0.1"})
         'mujoco 3.14.0 (installed: 4.0.1)'
     """
+    from ..packages import PHYSICS_PACKAGES
+
     pins = dict(pin.split("==", 1) for pin in requirements or () if "==" in pin)
     diffs = [
         f"{package} {pins[package]} (installed: {installed.get(package)})"
@@ -335,8 +324,11 @@ def physics_mismatch(requirements, installed) -> str | None:
 
 def collected_in_other_physics(ds) -> str | None:
     """:func:`physics_mismatch` of an opened Minari dataset against the installed packages."""
+    from .. import packages
+
     requirements = ds.storage.metadata.get("requirements")
-    return physics_mismatch(requirements, {p: installed_version(p) for p in PHYSICS_PACKAGES})
+    installed = {p: packages.installed_version(p) for p in packages.PHYSICS_PACKAGES}
+    return physics_mismatch(requirements, installed)
 
 
 def open_dataset(source: str | Task):

@@ -116,15 +116,10 @@ def settings_conflict(stored: dict, asked: dict) -> str | None:
 
 def package_requirements() -> list[str]:
     """Pip-style pins of what reproduces a dataset's environment (Minari's ``requirements``)."""
-    from importlib.metadata import PackageNotFoundError, version
+    from ..packages import DATASET_PACKAGES, installed_version
 
-    pins = []
-    for package in ("hispo-pl", "gymnasium", "gymnasium-robotics", "mujoco", "numpy"):
-        try:
-            pins.append(f"{package}=={version(package)}")
-        except PackageNotFoundError:
-            pins.append(package)
-    return pins
+    versions = {package: installed_version(package) for package in DATASET_PACKAGES}
+    return [f"{p}=={v}" if v else p for p, v in versions.items()]
 
 
 def _swap_in(new: Path, final: Path, old: Path) -> None:

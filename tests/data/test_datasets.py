@@ -248,6 +248,7 @@ def test_other_physics_is_named_once_per_dataset(tiny_umaze, monkeypatch, capsys
     """A dataset collected on another MuJoCo than the installed one trains and evaluates
     anyway, with one line that names both versions, said once however many tasks read it;
     the packages a dataset pinned alike, or did not pin, say nothing."""
+    from hispo_pl import packages
     from hispo_pl.data import datamodule, datasets
 
     assert datasets.physics_mismatch(["gymnasium==1.0"], {"mujoco": "4.0.1"}) is None
@@ -261,9 +262,9 @@ def test_other_physics_is_named_once_per_dataset(tiny_umaze, monkeypatch, capsys
     assert "collected on" not in capsys.readouterr().out  # made here: nothing to say
 
     monkeypatch.setattr(datamodule, "_WARNED_OF_PHYSICS", set())
-    real = datasets.installed_version
+    real = packages.installed_version
     monkeypatch.setattr(
-        datasets, "installed_version", lambda p: "0.0.1" if p == "mujoco" else real(p)
+        packages, "installed_version", lambda p: "0.0.1" if p == "mujoco" else real(p)
     )
     for task in ("pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]"):
         TaskDataModule(task=task, holdout=0.0).prepare_data()
