@@ -43,7 +43,7 @@ def _input_choice(flag: str, value: str, choices: dict) -> str:
 _WARNED_OF_PHYSICS: set[str] = set()
 
 
-def warn_of_other_physics(ds) -> None:
+def warn_of_other_physics(ds, source: str | Task) -> None:
     """Say once per process when a dataset was collected on another MuJoCo than this run rolls
     out on: its episodes are not what generating it here would give, and the expert moved in
     other physics than the policies are evaluated in."""
@@ -52,10 +52,15 @@ def warn_of_other_physics(ds) -> None:
     if mismatch is None or dataset_id in _WARNED_OF_PHYSICS:
         return
     _WARNED_OF_PHYSICS.add(dataset_id)
+    ours = dataset_source(source)
+    remedy = (
+        f"`hispo-pl data generate {ours.dataset_name} --overwrite` collects it on this one"
+        if isinstance(ours, Task)
+        else "collected on this one, its episodes would differ"
+    )
     say(
         f"{dataset_id} was collected on {mismatch}: this run's rollouts move in other "
-        "physics than its expert did, and the data are not what generating it here makes "
-        "(`hispo-pl data generate ... --overwrite`; docs/data.md, Reproducing a dataset)"
+        f"physics than its expert did; {remedy} (docs/data.md, Reproducing a dataset)"
     )
 
 
@@ -294,7 +299,7 @@ class TaskDataModule(L.LightningDataModule):
         ds, episodes = open_dataset(self.dataset_for(self.task))
         count = ds.total_episodes if episodes is None else len(episodes)
         self.dataset_use = DatasetUse(ds.spec.dataset_id, count)
-        warn_of_other_physics(ds)
+        warn_of_other_physics(ds, self.dataset_for(self.task))
 
     def describe(self) -> str:
         """The task as the console names it: its spec, or, when a Minari dataset is named for

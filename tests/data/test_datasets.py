@@ -271,9 +271,9 @@ def test_other_physics_is_named_once_per_dataset(tiny_umaze, monkeypatch, capsys
     said = [line for line in capsys.readouterr().out.splitlines() if "collected on" in line]
     assert said == [
         f"[hispo-pl] {UMAZE_ID} was collected on mujoco {recorded['mujoco']} (installed: "
-        "0.0.1): this run's rollouts move in other physics than its expert did, and the data "
-        "are not what generating it here makes (`hispo-pl data generate ... --overwrite`; "
-        "docs/data.md, Reproducing a dataset)"
+        "0.0.1): this run's rollouts move in other physics than its expert did; `hispo-pl "
+        "data generate pointmaze-umaze --overwrite` collects it on this one (docs/data.md, "
+        "Reproducing a dataset)"
     ]
 
 
