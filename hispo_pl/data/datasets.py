@@ -383,7 +383,8 @@ def open_dataset(source: str | Task):
 
 
 def dataset_stats(dataset_id: str) -> dict:
-    """Metadata of a stored dataset (episodes, steps, description)."""
+    """Metadata of a stored dataset (episodes, steps, description, and the packages it was
+    collected with: another MuJoCo collects other episodes)."""
     import minari
 
     ds = minari.load_dataset(dataset_id)
@@ -392,6 +393,7 @@ def dataset_stats(dataset_id: str) -> dict:
         "episodes": ds.total_episodes,
         "steps": ds.total_steps,
         "description": ds.storage.metadata.get("description", ""),
+        "collected_with": list(ds.storage.metadata.get("requirements") or []),
     }
 
 

@@ -326,6 +326,9 @@ def test_other_settings_over_an_existing_dataset_need_overwrite(
 
 
 def test_generated_dataset_records_its_settings_and_requirements(tiny_umaze):
+    from hispo_pl import packages
+    from hispo_pl.data.datasets import dataset_stats
+
     assert generation.generation_settings(UMAZE_ID) == {
         "episodes": TINY_EPISODES,
         "seed": 0,
@@ -333,7 +336,9 @@ def test_generated_dataset_records_its_settings_and_requirements(tiny_umaze):
     }
     requirements = minari.load_dataset(UMAZE_ID).storage.metadata["requirements"]
     assert any(r.startswith("hispo-pl") for r in requirements)
-    assert any(r.startswith("mujoco") for r in requirements)
+    assert f"mujoco=={packages.installed_version('mujoco')}" in requirements
+    assert f"numpy=={packages.installed_version('numpy')}" in requirements
+    assert dataset_stats(UMAZE_ID)["collected_with"] == requirements  # what `data list` shows
 
 
 def test_dataset_recovers_its_environment_by_gymnasium_id(tiny_umaze):
