@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import packages
 from ..errors import UserError
 from ..task_families import FAMILIES
 from ..tasks import (
@@ -311,12 +312,10 @@ def physics_mismatch(requirements, installed) -> str | None:
         >>> physics_mismatch(["mujoco==3.14.0", "gymnasium==1.4.0"], {"mujoco": "4.0.1"})
         'mujoco 3.14.0 (installed: 4.0.1)'
     """
-    from ..packages import PHYSICS_PACKAGES
-
     pins = dict(pin.split("==", 1) for pin in requirements or () if "==" in pin)
     diffs = [
         f"{package} {pins[package]} (installed: {installed.get(package)})"
-        for package in PHYSICS_PACKAGES
+        for package in packages.PHYSICS_PACKAGES
         if package in pins and pins[package] != installed.get(package)
     ]
     return ", ".join(diffs) or None
@@ -324,8 +323,6 @@ def physics_mismatch(requirements, installed) -> str | None:
 
 def collected_in_other_physics(ds) -> str | None:
     """:func:`physics_mismatch` of an opened Minari dataset against the installed packages."""
-    from .. import packages
-
     requirements = ds.storage.metadata.get("requirements")
     installed = {p: packages.installed_version(p) for p in packages.PHYSICS_PACKAGES}
     return physics_mismatch(requirements, installed)
