@@ -1,18 +1,26 @@
-"""A tolerance sweep as a tree: runs of one method that differ only in the pruning rule's ε
-train alike until the first task whose decision differs.
+"""A sweep as a tree: runs of one method that differ only in a setting nothing reads before
+some task train alike until that task, so a run at another value is copied from a finished run
+up to there instead of trained.
 
-The rule ``L_prev <= (1 + ε) · L_curr`` is applied after a task has trained and its search has
-scored the subspaces, and nothing before it reads ε. So a run at ε_b repeats, task for task, a
-finished run at ε_a up to the first task where ε_b decides otherwise on the losses ε_a's run
-recorded (``decisions.jsonl``). Those tasks are copied instead of trained (checkpoints, rows of
-R, decisions with ε_b written in, the fingerprint with ε_b's tolerances), and the run at ε_b
-resumes from there through the loop's own resume, which trains task ``k`` from the checkpoint
-of task ``k - 1`` with the same seed as an uninterrupted run
-(``tests/benchmark/test_branch.py`` pins a branched run to a real one). A run that agrees on
-every task is copied whole and its fit only writes the results.
+Two settings branch:
 
-    k = shared_tasks(RunDir("runs/eps0.01").decisions(), {"high": 0.05, "low": 0.05}, 4)
-    branch_run("runs/eps0.01", "runs/eps0.05", k, {"high": 0.05, "low": 0.05}, record)
+- the pruning rule's ε (``eps_high``, ``eps_low``). The rule ``L_prev <= (1 + ε) · L_curr`` is
+  applied after a task has trained and its search has scored the subspaces, and nothing before
+  it reads ε. So a run at ε_b repeats a finished run at ε_a up to the first task where ε_b
+  decides otherwise on the losses ε_a's run recorded (``decisions.jsonl``).
+- the penalty's λ (``model.init_args.penalty_lambda``, L2 and EWC). The penalty is zero until a
+  task has ended, and the task-end statistics (weights, Fisher) do not read λ: every λ trains
+  task 1 alike.
+
+The shared tasks are copied (checkpoints, rows of R, decisions, the fingerprint, with the
+branch's own value written in), and the run resumes from there through the loop's own resume,
+which trains task ``k`` from the checkpoint of task ``k - 1`` with the same seed as an
+uninterrupted run (``tests/benchmark/test_branch.py`` pins a branched run to a real one of each
+setting). A run that agrees on every task is copied whole and its fit only writes the results.
+
+    settings = {"eps_high": 0.05, "eps_low": 0.05}
+    k = shared_tasks(RunDir("runs/eps0.01").decisions(), settings, 4)
+    branch_run("runs/eps0.01", "runs/eps0.05", k, settings, record)
 """
 
 from __future__ import annotations
@@ -29,21 +37,35 @@ from ..rundir import RunDir
 
 PRUNING_CLASS = "SubspacePruning"
 PRUNING = f"hispo_pl.callbacks.{PRUNING_CLASS}"
-# a pruning knob's flag -> the subspace whose tolerance it sets
-EPS_FLAGS = {"--eps_high": "high", "--eps_low": "low"}
+# a pruning knob -> the subspace whose tolerance it sets
+EPS_KEYS = {"eps_high": "high", "eps_low": "low"}
+PENALTY_KEY = "model.init_args.penalty_lambda"
+PENALTY_UNREAD_TASKS = 1  # λ is first read by task 2's loss: task 1 trains alike at every λ
+BRANCHING_KEYS = (*EPS_KEYS, PENALTY_KEY)  # the settings a tree may sweep
 _FINGERPRINT_EPS = re.compile(
     rf"trainer\.callbacks\[{PRUNING_CLASS}[^\]]*\]\.init_args\.eps_(high|low)"
 )
 
 
-# --- which tasks two tolerances share: pure ----------------------------------------------------
+# --- which tasks two values share: pure --------------------------------------------------------
 
 
-def tolerances(extra: Sequence[str]) -> dict[str, float]:
-    """The pruning tolerances a run's extra fit arguments set, by subspace
-    (``--eps_high 0.1 --eps_low 0.1`` → ``{"high": 0.1, "low": 0.1}``)."""
+def branch_settings(extra: Sequence[str]) -> dict[str, float]:
+    """The branching settings a run's extra fit arguments set (``--eps_high 0.1 --eps_low 0.1``
+    → ``{"eps_high": 0.1, "eps_low": 0.1}``; ``--model.init_args.penalty_lambda 10`` →
+    ``{"model.init_args.penalty_lambda": 10.0}``)."""
     pairs = zip(extra[::2], extra[1::2], strict=False)
-    return {EPS_FLAGS[flag]: float(value) for flag, value in pairs if flag in EPS_FLAGS}
+    return {
+        flag.removeprefix("--"): float(value)
+        for flag, value in pairs
+        if flag.removeprefix("--") in BRANCHING_KEYS
+    }
+
+
+def tolerances(settings: Mapping[str, float]) -> dict[str, float]:
+    """The pruning tolerances among ``settings``, by subspace (``{"eps_low": 0.1}`` →
+    ``{"low": 0.1}``)."""
+    return {EPS_KEYS[key]: value for key, value in settings.items() if key in EPS_KEYS}
 
 
 def decision_under(record: Decision, eps: Mapping[str, float]) -> str:
@@ -57,29 +79,34 @@ def decision_under(record: Decision, eps: Mapping[str, float]) -> str:
     return "keep" if keep_new else "prune"
 
 
-def shared_tasks(decisions: Sequence[Decision], eps: Mapping[str, float], n_tasks: int) -> int:
-    """How many leading tasks a run at ``eps`` shares with the run that recorded
+def shared_tasks(decisions: Sequence[Decision], settings: Mapping[str, float], n_tasks: int) -> int:
+    """How many leading tasks a run at ``settings`` shares with the run that recorded
     ``decisions`` over ``n_tasks`` finished tasks: the index of the first task with a decision
-    ``eps`` would take otherwise, ``n_tasks`` when there is none.
+    its tolerances would take otherwise, at most one where it sets the penalty's λ, and
+    ``n_tasks`` when nothing parts them.
 
     Example:
         >>> d = [LossDecision(task=1, subspace="low", decision="keep", l_prev=1.2, l_curr=1.0)]
-        >>> shared_tasks(d, {"low": 0.25}, 4), shared_tasks(d, {"low": 0.05}, 4)
+        >>> shared_tasks(d, {"eps_low": 0.25}, 4), shared_tasks(d, {"eps_low": 0.05}, 4)
         (1, 4)
+        >>> shared_tasks([], {PENALTY_KEY: 10.0}, 4)
+        1
     """
+    eps = tolerances(settings)
     differing = [d.task for d in decisions if decision_under(d, eps) != d.decision]
-    return min([n_tasks, *differing])
+    unread = [PENALTY_UNREAD_TASKS] if PENALTY_KEY in settings else []
+    return min([n_tasks, *differing, *unread])
 
 
 def best_source(
-    candidates: Mapping[str, tuple[Sequence[Decision], int]], eps: Mapping[str, float]
+    candidates: Mapping[str, tuple[Sequence[Decision], int]], settings: Mapping[str, float]
 ) -> tuple[str, int] | None:
-    """The candidate (name → its decisions and finished tasks) a run at ``eps`` shares the
+    """The candidate (name → its decisions and finished tasks) a run at ``settings`` shares the
     most tasks with, and that count; None when it shares none with any. A tie goes to the
     candidate listed first."""
     best = None
     for name, (decisions, n_tasks) in candidates.items():
-        k = shared_tasks(decisions, eps, n_tasks)
+        k = shared_tasks(decisions, settings, n_tasks)
         if k > 0 and (best is None or k > best[1]):
             best = (name, k)
     return best
@@ -100,25 +127,34 @@ def _pruning_key(eps: Mapping[str, float]) -> str:
     return SubspacePruning(eps=dict(eps)).state_key
 
 
-def branched_checkpoint(checkpoint: dict, eps: Mapping[str, float]) -> dict:
-    """A finished task's checkpoint as the run at ``eps`` writes it: the pruning callback's
-    entry, where it stored one, under the key its tolerances give
-    (``SubspacePruning{'eps': ...}``); the rest, trained alike, unchanged."""
+def branched_checkpoint(checkpoint: dict, settings: Mapping[str, float]) -> dict:
+    """A finished task's checkpoint as the run at ``settings`` writes it: the pruning
+    callback's entry, where it stored one, under the key its tolerances give
+    (``SubspacePruning{'eps': ...}``), and the module's hyperparameters with its λ; the rest,
+    trained alike, unchanged."""
+    out = dict(checkpoint)
+    eps = tolerances(settings)
     callbacks = dict(checkpoint.get("callbacks") or {})
     found = [k for k in callbacks if k.startswith(PRUNING_CLASS)]
-    if not found:
-        return checkpoint
-    if len(found) > 1:
+    if eps and len(found) > 1:
         raise RunDirError(f"expected one {PRUNING_CLASS} entry in the checkpoint, found {found}")
-    state = callbacks.pop(found[0])
-    callbacks[_pruning_key(eps)] = state
-    return {**checkpoint, "callbacks": callbacks}
+    if eps and found:
+        callbacks[_pruning_key(eps)] = callbacks.pop(found[0])
+        out["callbacks"] = callbacks
+    hparams = checkpoint.get("hyper_parameters")
+    name = PENALTY_KEY.rsplit(".", 1)[1]
+    if PENALTY_KEY in settings and isinstance(hparams, dict) and name in hparams:
+        out["hyper_parameters"] = {**hparams, name: settings[PENALTY_KEY]}
+    return out
 
 
-def branched_config_text(text: str, run_dir: Path, eps: Mapping[str, float]) -> str:
-    """A run's ``config.yaml`` (or ``task_XX.config.yaml``) as the run at ``eps`` in
-    ``run_dir`` writes it: the pruning callback's tolerances and the logger's directory."""
+def branched_config_text(text: str, run_dir: Path, settings: Mapping[str, float]) -> str:
+    """A run's ``config.yaml`` (or ``task_XX.config.yaml``) as the run at ``settings`` in
+    ``run_dir`` writes it: the pruning callback's tolerances, the penalty's λ and the logger's
+    directory."""
     from .derive import rewritten_config_text
+
+    eps = tolerances(settings)
 
     def change(config: dict) -> None:
         for callback in (config.get("trainer") or {}).get("callbacks") or []:
@@ -126,17 +162,26 @@ def branched_config_text(text: str, run_dir: Path, eps: Mapping[str, float]) -> 
                 init = callback.setdefault("init_args", {})
                 for name, value in eps.items():
                     init[f"eps_{name}"] = value
+        if PENALTY_KEY in settings:
+            *path, name = PENALTY_KEY.split(".")
+            node = config
+            for part in path:
+                node = node.setdefault(part, {})
+            node[name] = settings[PENALTY_KEY]
 
     return rewritten_config_text(text, run_dir, change)
 
 
-def branched_fingerprint(fingerprint: Mapping, eps: Mapping[str, float]) -> dict:
-    """A run's fingerprint with the pruning tolerances of ``eps``."""
+def branched_fingerprint(fingerprint: Mapping, settings: Mapping[str, float]) -> dict:
+    """A run's fingerprint with the pruning tolerances and the penalty's λ of ``settings``."""
+    eps = tolerances(settings)
     out = dict(fingerprint)
     for key in fingerprint:
         match = _FINGERPRINT_EPS.fullmatch(key)
         if match and match.group(1) in eps:
             out[key] = eps[match.group(1)]
+    if PENALTY_KEY in settings and PENALTY_KEY in fingerprint:
+        out[PENALTY_KEY] = settings[PENALTY_KEY]
     return out
 
 
@@ -144,32 +189,32 @@ def branch_run(
     source: str | Path,
     target: str | Path,
     tasks: int,
-    eps: Mapping[str, float],
+    settings: Mapping[str, float],
     record: LaunchRecord,
 ) -> None:
-    """Start the run at ``eps`` in ``target`` with the first ``tasks`` tasks of the run in
+    """Start the run at ``settings`` in ``target`` with the first ``tasks`` tasks of the run in
     ``source``: their checkpoints, task configs and search files, ``progress.json`` (rows,
-    datasets and fingerprint; no training time, as none was spent), the decisions with ``eps``
-    written in, and ``run.json`` (``record`` with ``branched_tasks``, and ``branched_from``: the
-    source's directory unless ``record`` names it otherwise).
+    datasets and fingerprint; no training time, as none was spent), the decisions with its
+    tolerances written in, and ``run.json`` (``record`` with ``branched_tasks``, and
+    ``branched_from``: the source's directory unless ``record`` names it otherwise).
     The run's own fit then resumes after them. ``target``'s run lock is held meanwhile.
 
     Raises:
         RunDirError: ``source`` has fewer finished tasks or checkpoints, ``target`` already
-            holds a run or another process holds it, or a decision of those tasks would
-            differ at ``eps``."""
+            holds a run or another process holds it, or those tasks would not train alike at
+            ``settings`` (a decision would differ, or they reach past task 1 at another λ)."""
     from ..resume import RunDirLock
 
     Path(target).mkdir(parents=True, exist_ok=True)
     with RunDirLock(target):  # as a run holds its folder: two launches never branch into one
-        _write_branch(source, target, tasks, eps, record)
+        _write_branch(source, target, tasks, settings, record)
 
 
 def _write_branch(
     source: str | Path,
     target: str | Path,
     tasks: int,
-    eps: Mapping[str, float],
+    settings: Mapping[str, float],
     record: LaunchRecord,
 ) -> None:
     import torch
@@ -185,23 +230,27 @@ def _write_branch(
     if out.progress_file.exists():
         raise RunDirError(f"{out}: already holds a run; branch into an empty directory")
     decisions = [d for d in src.decisions() if d.task < tasks]
-    if shared_tasks(decisions, eps, tasks) < tasks:
-        raise RunDirError(f"{src}: its first {tasks} tasks decide otherwise at {dict(eps)}")
+    if shared_tasks(decisions, settings, tasks) < tasks:
+        raise RunDirError(
+            f"{src}: its first {tasks} tasks would not train alike at {dict(settings)}"
+        )
     out.path.mkdir(parents=True, exist_ok=True)
     for i in range(tasks):
-        checkpoint = branched_checkpoint(read_checkpoint(src.checkpoint(i)), eps)
+        checkpoint = branched_checkpoint(read_checkpoint(src.checkpoint(i)), settings)
         atomic_save(out.checkpoint(i), lambda tmp, c=checkpoint: torch.save(c, tmp))
         if src.task_config(i).exists():
             text = src.task_config(i).read_text()
-            out.write_task_config(i, branched_config_text(text, out.path, eps))
+            out.write_task_config(i, branched_config_text(text, out.path, settings))
         for subspace in dict.fromkeys(d.subspace for d in decisions if d.task == i):
             search = src.search_file(i, subspace)  # the search's candidates, for the notebook
             if search.is_file():
                 real_folder(out.search_file(i, subspace).parent, out.path)
                 copy_files([(search, out.search_file(i, subspace))])
     out.decisions_file.unlink(missing_ok=True)
-    out.append_decisions([_with_eps(d, eps) for d in decisions])
+    out.append_decisions([_with_eps(d, tolerances(settings)) for d in decisions])
     fingerprint, memory = progress.fingerprint, progress.mem_per_task
+    if fingerprint is not None:
+        fingerprint = branched_fingerprint(fingerprint, settings)
     branched = dataclasses.replace(
         progress,
         rows=progress.rows[:tasks],
@@ -209,7 +258,7 @@ def _write_branch(
         mem_per_task=memory[:tasks] if memory is not None else None,
         wall_time_s=[0.0] * tasks,
         phase_time_s=[{"training": 0.0}] * tasks,
-        fingerprint=branched_fingerprint(fingerprint, eps) if fingerprint is not None else None,
+        fingerprint=fingerprint,
     )
     launch = LaunchRecord.from_json({"branched_from": str(src)}).merged(record)
     out.write_run_record(launch.merged({"branched_tasks": tasks}))

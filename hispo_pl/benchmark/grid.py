@@ -19,13 +19,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import ConfigError
-from .branch import EPS_FLAGS
+from .branch import BRANCHING_KEYS
 from .plan import stream_config_path
 
 GRIDS_DIR = "grids"
 GRID_FILE = "grid.json"  # the grid's definition, beside its reports
 SWEEPS_DIR = "sweeps"  # <root>/<stream>/sweeps/<label>/seed<S>: kept out of the stream's table
-BRANCHING_KEYS = tuple(flag.removeprefix("--") for flag in EPS_FLAGS)  # what a tree may sweep
 
 
 @dataclass(frozen=True)
@@ -34,8 +33,8 @@ class Sweep:
 
     ``key`` is a dotted fit flag (``model.init_args.penalty_lambda``) or several set to the
     same value (``eps_high,eps_low``: one ε for both subspaces). A ``branch`` sweep is of the
-    pruning tolerances: its first value trains, and every other value's run is branched from
-    a finished one up to their first differing decision (:mod:`.branch`)."""
+    pruning tolerances or the penalty's λ: its first value trains, and every other value's run
+    is branched from a finished one over the tasks they train alike (:mod:`.branch`)."""
 
     method: str
     key: str
@@ -167,7 +166,7 @@ def grid_from_dict(raw: dict, name: str, where: str = "grid") -> Grid:
         if sweeps[method].branch and not set(sweeps[method].keys) <= set(BRANCHING_KEYS):
             raise ConfigError(
                 f"{where}: sweep of {method}: `branch` needs keys among "
-                f"{', '.join(BRANCHING_KEYS)} (only the pruning tolerance leaves training alike)"
+                f"{', '.join(BRANCHING_KEYS)} (settings that leave the first tasks' training alike)"
             )
     steps = raw.get("steps_per_task")
     if steps is not None and _number(steps, "`steps_per_task`", where, int) < 1:

@@ -21,7 +21,7 @@ def sweep_per(root: Path, stream: str, label: str, seed: int) -> float | None:
 
 
 def tree_tasks(root: Path, stream: str, sweep) -> str:
-    """A tolerance tree's cost on one stream: the tasks its committed runs trained, of the
+    """A sweep tree's cost on one stream: the tasks its committed runs trained, of the
     tasks they hold (a branched run's ``run.json`` says how many it copied)."""
     trained = held = 0
     for value in sweep.values:
@@ -68,9 +68,10 @@ def sweeps_markdown(grid: Grid, root: Path) -> str:
     )
     if any(sweep.branch for sweep in grid.sweeps.values()):
         legend += (
-            "A tree's runs (a sweep of the pruning tolerance) share the tasks before their first "
-            "differing decision: its last column counts the tasks they trained, of all the tasks "
-            "their runs hold.\n"
+            "A tree's runs share the tasks they train alike (a pruning tolerance's: those before "
+            "their first differing decision; the penalty's λ: task 1), copied from a finished "
+            "value: its last column counts the tasks they trained, of all the tasks their runs "
+            "hold.\n"
         )
     return "\n".join(lines) + legend
 

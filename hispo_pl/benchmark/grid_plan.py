@@ -60,7 +60,7 @@ def _flag(sweep: Sweep, value: float) -> tuple[str, ...]:
 class GridPlan:
     """What a grid still needs: runs to train, runs to copy from an identical one (target,
     source), keep-last runs to derive from their keep-all sibling's checkpoints (target,
-    source: :mod:`~hispo_pl.benchmark.derive`), runs of a tolerance tree to branch before they
+    source: :mod:`~hispo_pl.benchmark.derive`), runs of a sweep tree to branch before they
     train on (target, source, shared tasks: :mod:`~hispo_pl.benchmark.branch`; each is in
     ``todo`` too), and lines for what waits on something else."""
 

@@ -220,9 +220,9 @@ def grid_branch_source(
     grid: Grid, config_dir: Path, work: Path
 ) -> Callable[[Cell, list[Cell]], tuple[Cell, int] | None]:
     """``branch_source(cell, finished)``: the run among ``finished`` (cells whose runs in
-    ``work`` are whole) that ``cell``'s tolerances share most leading tasks with, and how many
+    ``work`` are whole) that ``cell``'s settings share most leading tasks with, and how many
     (:func:`~hispo_pl.benchmark.branch.best_source`); None when none shares a task."""
-    from .branch import best_source, tolerances
+    from .branch import best_source, branch_settings
 
     def branch_source(cell: Cell, finished: list[Cell]) -> tuple[Cell, int] | None:
         candidates, by_name = {}, {}
@@ -230,7 +230,7 @@ def grid_branch_source(
             run = RunDir(cell_run(done, grid, config_dir, work).run_dir)
             candidates[done.name] = (run.decisions(), len(run.stream_results().stream))
             by_name[done.name] = done
-        found = best_source(candidates, tolerances(cell.extra))
+        found = best_source(candidates, branch_settings(cell.extra))
         return None if found is None else (by_name[found[0]], found[1])
 
     return branch_source
@@ -247,14 +247,14 @@ def branch_cell(
 ) -> None:
     """Start ``target``'s run in ``work`` with ``source``'s first ``tasks`` tasks
     (:func:`~hispo_pl.benchmark.branch.branch_run`); the grid's runner then resumes it."""
-    from .branch import branch_run, tolerances
+    from .branch import branch_run, branch_settings
 
     run, made = (
         cell_run(target, grid, config_dir, work, num_threads),
         cell_run(source, grid, config_dir, work, num_threads),
     )
     record = LaunchRecord(branched_from=source.name)
-    branch_run(made.run_dir, run.run_dir, tasks, tolerances(target.extra), record)
+    branch_run(made.run_dir, run.run_dir, tasks, branch_settings(target.extra), record)
 
 
 def derive_cell(

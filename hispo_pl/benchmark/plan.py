@@ -427,7 +427,7 @@ def pending_runs(
         )
         if made_on is not None:
             record = record.merged(made_on)
-        if old is not None:  # a tolerance tree's run keeps the record of its branching
+        if old is not None:  # a sweep tree's run keeps the record of its branching
             branched = {"branched_from": old.branched_from, "branched_tasks": old.branched_tasks}
             record = record.merged({k: v for k, v in branched.items() if old.holds(k)})
             if run_dir.progress_file.exists() and old.holds("commit") and record.holds("commit"):

@@ -1,8 +1,9 @@
-"""The ε tree: a run at another pruning tolerance shares the tasks before its first differing
-decision with a finished run, so it is branched from that run's files and resumed instead of
-trained from the start. The test that licenses it: a branched run equals a real run of that ε
-(results, decisions, progress, checkpoints), both where it trains on after the branch and where
-it agrees on every task and is copied whole."""
+"""Sweep trees: a run at another pruning tolerance shares the tasks before its first differing
+decision with a finished run, and a run at another penalty λ (L2, EWC) shares task 1, so it is
+branched from that run's files and resumed instead of trained from the start. The tests that
+license it: a branched run equals a real run of that ε or λ (results, decisions, progress,
+checkpoints, configuration), both where it trains on after the branch and where it agrees on
+every task and is copied whole."""
 
 from __future__ import annotations
 
@@ -38,7 +39,7 @@ def _eps_args(eps: float) -> tuple[str, ...]:
 
 
 def _both(eps: float) -> dict[str, float]:
-    return {"high": eps, "low": eps}
+    return {"eps_high": eps, "eps_low": eps}
 
 
 @pytest.fixture(scope="module")
@@ -89,6 +90,42 @@ def test_a_branched_run_equals_a_real_run_of_its_tolerance(root_run, tmp_path, s
         assert root != [d.decision for d in target.decisions() if d.task == shared]
 
 
+def _lambda_args(lam: float) -> tuple[str, ...]:
+    return ("--model.init_args.penalty_lambda", f"{lam:g}", *BUDGET)
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize("method", ["l2", "ewc"])
+def test_a_branched_run_equals_a_real_run_of_its_lambda(tiny_umaze, tmp_path, method):
+    source = fit_tiny_stream(method, tmp_path / "source", STREAM, *_lambda_args(0.01))[1]
+    real = RunDir(fit_tiny_stream(method, tmp_path / "real", STREAM, *_lambda_args(10))[1])
+    settings = {branch.PENALTY_KEY: 10.0}
+    target = RunDir(tmp_path / "branched" / "pointmaze-1" / "seed0")
+    with pytest.raises(RunDirError, match="would not train alike"):
+        branch.branch_run(source, tmp_path / "two", 2, settings, LaunchRecord())
+    branch.branch_run(source, target.path, 1, settings, LaunchRecord(method=method))
+    fit_tiny_stream(method, tmp_path / "branched", STREAM, *_lambda_args(10))  # in target
+    assert without_times(target.stream_results().to_json()) == without_times(
+        real.stream_results().to_json()
+    )
+    branched, trained = target.read_progress().to_json(), real.read_progress().to_json()
+    assert without_times(branched) == without_times(trained)
+    for task in range(len(STREAM)):
+        a = torch.load(target.checkpoint(task), weights_only=True)
+        assert nested_equal(a, torch.load(real.checkpoint(task), weights_only=True)), task
+    for task in range(len(STREAM)):
+        configs = [yaml.safe_load(r.task_config(task).read_text()) for r in (target, real)]
+        for config in configs:
+            config["trainer"].pop("logger")
+        assert configs[0] == configs[1], task
+    assert saved_setting(target.config_file, branch.PENALTY_KEY) == 10
+    training = [p["training"] for p in target.read_progress().phase_time_s]
+    assert training[0] == 0.0 and all(t > 0 for t in training[1:])
+    # the source's task 2 did train otherwise: λ is read from task 2 on
+    trained_at = [torch.load(RunDir(r).checkpoint(1), weights_only=True) for r in (source, real)]
+    assert not nested_equal(trained_at[0]["state_dict"], trained_at[1]["state_dict"])
+
+
 def test_shared_tasks_end_at_the_first_decision_the_tolerance_changes():
     d = [
         LossDecision(task=0, subspace="low", decision="first", eps=0.1),
@@ -98,18 +135,28 @@ def test_shared_tasks_end_at_the_first_decision_the_tolerance_changes():
     assert branch.shared_tasks(d, _both(0.1), 4) == 4
     assert branch.shared_tasks(d, _both(0.01), 4) == 2  # task 2's high anchor is kept at 0.01
     assert branch.shared_tasks(d, _both(0.25), 4) == 1  # task 1's low anchor is pruned at 0.25
-    assert branch.shared_tasks(d, {"high": 0.1}, 4) == 4  # low's tolerance as recorded
+    assert branch.shared_tasks(d, {"eps_high": 0.1}, 4) == 4  # low's tolerance as recorded
     found = branch.best_source({"a": (d, 3), "b": (d[:2], 2)}, _both(0.01))
     assert found == ("a", 2)
-    assert branch.best_source({"a": (d, 3)}, {"low": 0.25, "high": 0.25}) == ("a", 1)
-    assert branch.tolerances(["--eps_high", "0.05", "--eps_low", "0.05", "--x", "1"]) == (
+    assert branch.best_source({"a": (d, 3)}, _both(0.25)) == ("a", 1)
+    assert branch.branch_settings(["--eps_high", "0.05", "--eps_low", "0.05", "--x", "1"]) == (
         _both(0.05)
     )
+    assert branch.tolerances(_both(0.05)) == {"high": 0.05, "low": 0.05}
+
+
+def test_a_penalty_lambda_shares_task_one_whatever_the_decisions():
+    lam = {branch.PENALTY_KEY: 10.0}
+    assert branch.branch_settings(["--model.init_args.penalty_lambda", "10", "--x", "1"]) == lam
+    assert branch.tolerances(lam) == {}
+    assert branch.shared_tasks([], lam, 4) == 1
+    assert branch.shared_tasks([], lam, 0) == 0  # a source with no finished task shares none
+    assert branch.best_source({"a": ([], 4), "b": ([], 0)}, lam) == ("a", 1)
 
 
 def test_a_branch_refuses_tasks_that_would_decide_otherwise_or_a_used_directory(root_run, tmp_path):
     eps = _tolerance_sharing(root_run, 2)
-    with pytest.raises(RunDirError, match="decide otherwise"):
+    with pytest.raises(RunDirError, match="would not train alike"):
         branch.branch_run(root_run, tmp_path / "a", 3, _both(eps), LaunchRecord())
     with pytest.raises(RunDirError, match="fewer than 4 finished tasks"):
         branch.branch_run(root_run, tmp_path / "b", 4, _both(ROOT_EPS), LaunchRecord())
@@ -174,6 +221,36 @@ def test_the_grid_trains_a_tolerance_sweep_as_a_tree(tiny_umaze, tmp_path, capsy
     # the chosen value's seed 0 is its sweep run; nothing is left to run
     assert cli_main([*args, "--dry-run"]) == 0
     assert "pointmaze-1: 4 done, 0 to run" in capsys.readouterr().out
+
+
+@pytest.mark.e2e
+def test_the_grid_trains_a_lambda_sweep_as_a_tree(tiny_umaze, tmp_path, capsys):
+    pytest.importorskip("rliable")
+    grid = {
+        "streams": ["pointmaze-1"],
+        "methods": ["l2"],
+        "seeds": [0],
+        "steps_per_task": 20,
+        "extra": [*BENCH_TINY_OVERRIDES[:1], json.dumps(STREAM), *BENCH_TINY_OVERRIDES[2:]],
+        "sweeps": {
+            "l2": {"key": branch.PENALTY_KEY, "name": "lambda", "values": [0.01, 10],
+                   "branch": True}
+        },
+    }  # fmt: skip
+    configs = grid_config_dir(tmp_path, "lambda-tree", grid)
+    work, root = tmp_path / "work", tmp_path / "results"
+    args = ["benchmark", "--grid", "lambda-tree", "--config-dir", str(configs), "--out"]
+    args += [str(work), "--export", str(root), "--workers", "1"]
+    assert cli_main(args) == 0
+    assert "l2-lambda10/seed0: its first 1 task(s) branched" in capsys.readouterr().out
+    sweeps = root / "pointmaze-1" / "sweeps"
+    first, other = (RunDir(sweeps / f"l2-lambda{v}" / "seed0") for v in ("0.01", "10"))
+    record = other.read_run_record()
+    assert (record.branched_from, record.branched_tasks) == ("pointmaze-1/l2-lambda0.01/seed0", 1)
+    assert saved_setting(other.config_file, branch.PENALTY_KEY) == 10
+    assert other.stream_results().R[:1] == first.stream_results().R[:1]
+    held = 2 * len(STREAM)
+    assert f"| {held - 1} of {held} |" in (root / "grid-lambda-tree" / "sweeps.md").read_text()
 
 
 def test_a_branch_refuses_a_folder_another_process_holds(root_run, tmp_path):

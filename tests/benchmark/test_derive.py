@@ -116,8 +116,10 @@ def test_the_grid_derives_a_keep_last_cell_whose_sibling_trains_or_left_its_chec
     )
     assert not {c.method for c in plan.todo} & {"sc1", "ft1"}
     line = grid_plan.describe(plan, lambda c: None)[0]
-    # 13 methods, 2 of them derived: 11 × 3 seeds, and the two λ sweeps' 4 values besides seed 0's
-    assert "0 done, 37 to run" in line and "6 to derive from a sibling" in line
+    # 13 methods, 2 of them derived, L2's and EWC's seeds waiting for their sweeps: 9 × 3 seeds,
+    # and each λ tree's first value (the other four branch from it once it has finished)
+    assert "0 done, 29 to run" in line and "6 to derive from a sibling" in line
+    assert sum("waits for the tree's first value" in w for w in plan.waiting) == 8
     # the sibling committed: derived only where its run directory is still there (seed 0)
     done = {f"pointmaze-1/scn/seed{s}": 0.5 for s in range(3)}
     plan = grid_plan.plan_cells(

@@ -53,6 +53,7 @@ def test_the_paper_grid_loads_with_every_method_of_its_tables():
     assert grid.seeds == (0, 1, 2)
     for method in ("l2", "ewc"):
         assert grid.sweeps[method].values == (0.01, 0.1, 1.0, 10.0, 100.0)
+        assert grid.sweeps[method].branch  # task 1 trains alike at every λ
     for method in grid.methods:
         assert (ROOT / "configs/methods" / f"{method}.yaml").is_file()
     assert gr.grid_streams(grid, "videogame") == ["videogame-1", "videogame-2"]
@@ -70,6 +71,11 @@ def test_the_paper_grid_loads_with_every_method_of_its_tables():
         ({"aggregates": {"y": []}}, "each aggregate of `aggregates` is a list of the grid's"),
         ({"sweeps": {"ewc": {"key": "k", "values": [1]}}}, "sweep of ewc, which is not among"),
         ({"sweeps": {"l2": {"key": "k"}}}, "sweep of l2 needs `key` and `values`"),
+        (
+            {"sweeps": {"l2": {"key": "model.init_args.lr", "values": [1], "branch": True}}},
+            "sweep of l2: `branch` needs keys among eps_high, eps_low, "
+            "model.init_args.penalty_lambda",
+        ),
     ],
 )
 def test_a_malformed_grid_is_refused_in_one_line(change, message):
