@@ -73,6 +73,11 @@ class Family:
     # anchor carries over at a higher loss on the continuous-control mazes
     # (docs/studies/pruning.md); the game mazes' own is in _game_family
     pruning_eps: dict[str, float] = field(default_factory=lambda: {"high": 0.1, "low": 0.6})
+    # the PAC zero-shot criterion's tolerances when the method config leaves them unset: how
+    # far (subgoal offset in maze units, action) the best existing point may predict the new
+    # task's data, in this family's units; measured to separate the tasks HiSPO's pruning
+    # kept a new anchor for from those it dropped it on (docs/studies/zero-shot.md)
+    pac_eps: dict[str, float] = field(default_factory=lambda: {"high": 0.5, "low": 1.0})
     # whether the observation holds the position (its first goal_dim features): the policies
     # then read the position where the observation holds it, so that an observation variant
     # moves it too; else the position is a channel apart, in maze coordinates in every variant
@@ -105,6 +110,10 @@ def _game_family(
         # a closed door or a raised block changes what to do in a few states only, so the mean
         # loss moves little where the behaviour changes a lot: prune only at nearly equal loss
         pruning_eps={"high": 0.05, "low": 0.05},
+        # no distance separates the game mazes' tasks as the pruning does (a pruned low
+        # anchor's 90 % quantile lies among the kept ones'): tolerances below every measured
+        # one, so the criterion does not fire and HiSPO-PAC trains as HiSPO
+        pac_eps={"high": 0.5, "low": 0.1},
         anchor_init="random",
         expert="hispo_pl.envs.videogame.expert:GameExpert",
         behaviour="hispo_pl.envs.games:GameMazes",
@@ -151,6 +160,9 @@ FAMILIES: dict[str, Family] = {
         behaviour="hispo_pl.envs.robotics:RoboticsMazes",
         expert_reads_weights=True,
         step_seconds=0.05,  # 5 MuJoCo steps of 0.01 s per action
+        # eight joint torques and cells four units wide: PointMaze's (1.0, 0.5) would take a
+        # low anchor for permuted actions and refuse a high one for a repeated maze
+        pac_eps={"high": 0.65, "low": 0.5},
     ),
     "amazeville": _game_family(
         "amazeville",

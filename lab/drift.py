@@ -7,7 +7,7 @@ under the new one. This check compares them all: each done cell's saved ``config
 command the grid plans for it today are both parsed by today's ``hispo-pl fit`` (its defaults
 filled in, the preset and the knob flags applied, the classes made, nothing trained) and
 compared setting by setting (:func:`~hispo_pl.run_checks.run_fingerprint`). A setting the
-configuration leaves to the task family (``anchor_init: null``, a pruning ε left unset) is
+configuration leaves to the task family (``anchor_init: null``, a pruning or PAC ε left unset) is
 read as the family's value on both sides::
 
     python -m lab config-drift --grid paper --part antmaze
@@ -23,6 +23,7 @@ from pathlib import Path
 
 ANCHOR_INIT = "model.init_args.anchor_init"
 PRUNING = "trainer.callbacks[SubspacePruning].init_args."
+TRANSFER = "trainer.callbacks[ZeroShotTransfer].init_args."
 FIT_SUBCOMMAND_KEYS = ("ckpt_path", "weights_only")
 # the packages a saved configuration's classes may come from; any other is refused unimported
 CLASS_PACKAGES = ("hispo_pl", "lightning")
@@ -59,6 +60,10 @@ def family_resolved(settings: Mapping, family) -> dict:
     for name, eps in family.pruning_eps.items():
         key, named = f"{PRUNING}eps_{name}", f"{PRUNING}eps.{name}"
         if key in out and out[key] is None and out.get(named) is None:
+            out[key] = eps
+    for name, eps in family.pac_eps.items():
+        key = f"{TRANSFER}eps_{name}"
+        if key in out and out[key] is None:
             out[key] = eps
     return out
 

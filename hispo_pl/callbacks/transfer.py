@@ -9,6 +9,7 @@ from typing import Literal
 
 import lightning as L
 import torch
+from torch import Tensor
 from typing_extensions import override
 
 from ..decisions import pac_rate, zero_shot
@@ -16,6 +17,7 @@ from ..nn import eval_mode
 from ..nn.simplex import sample_dirichlet
 from ..race import race_subspace, resolve_precision
 from ..results import ZeroShotDecision
+from ..task_families import Family
 from .anchors import AnchorExtension, log_decisions
 from .protocols import TransferableSubspaces, require_subspaces
 from .state import KeyedState
@@ -34,10 +36,12 @@ class ZeroShotTransfer(KeyedState):
     List it before :class:`AnchorExtension`.
 
     Args:
-        eps_high: distance (maze units) the high policy's subgoal may be off.
-        eps_low: distance the low policy's action may be off (actions lie in [-1, 1]²; the
-            expert data carry Gaussian action noise of std 0.2). The defaults separate a
-            repeated task from a new one on the PointMaze streams (measured on their runs).
+        eps_high: distance (maze units) the high policy's subgoal may be off; ``None``: the
+            task family's (:attr:`~hispo_pl.tasks.Family.pac_eps`).
+        eps_low: distance the low policy's action may be off; ``None``: the task family's.
+            A family's tolerances separate, on its streams, the tasks where HiSPO's pruning
+            dropped the new anchor from those where it kept one (``docs/studies/zero-shot.md``):
+            subgoals and actions have each family's own units and dimensions.
         delta: accepted probability of a larger error.
         n_candidates, n_batches, survivors, probe_samples, precision, seed: the search, as in
             :class:`DirichletEvaluation`.
@@ -57,8 +61,8 @@ class ZeroShotTransfer(KeyedState):
 
     def __init__(
         self,
-        eps_high: float = 0.5,
-        eps_low: float = 1.0,
+        eps_high: float | None = None,
+        eps_low: float | None = None,
         delta: float = 0.1,
         n_candidates: int = 1024,
         n_batches: int = 4,
@@ -67,7 +71,8 @@ class ZeroShotTransfer(KeyedState):
         precision: Literal["auto", "32", "bf16"] = "auto",
         seed: int = 0,
     ):
-        self.eps = {"high": eps_high, "low": eps_low}
+        given = {"high": eps_high, "low": eps_low}
+        self.eps = {name: e for name, e in given.items() if e is not None}
         self.delta = delta
         self.n_candidates, self.n_batches, self.survivors = n_candidates, n_batches, survivors
         self.probe_samples, self.precision, self.seed = probe_samples, precision, seed
@@ -104,14 +109,17 @@ class ZeroShotTransfer(KeyedState):
             self._train_seconds.append(time.perf_counter() - self._started)
 
     @torch.no_grad()
-    def _transfer(self, trainer: L.Trainer, module) -> list[ZeroShotDecision]:
-        dm = trainer.datamodule
+    def best_points(self, module, datamodule) -> dict[str, tuple[Tensor, dict[str, Tensor]]]:
+        """Per subspace not yet taken for this task: the best point of its existing anchors on
+        the task's held-out batches (Dirichlet candidates raced as in
+        :class:`DirichletEvaluation`) and, per policy it holds, the distance of that point's
+        prediction to each sample: what the criterion tests, before any anchor is added."""
         device = module.device
-        batches = dm.fixed_batches(self.n_batches, self.seed, device=device)
+        batches = datamodule.fixed_batches(self.n_batches, self.seed, device=device)
         probe = {k: v[: self.probe_samples] for k, v in batches[0].items()}
         precision = resolve_precision(self.precision, device)
         generator = torch.Generator().manual_seed(self.seed)
-        decisions = []
+        out = {}
         with eval_mode(module):
             for name in module.subspace_names:
                 if module.transferred(name):
@@ -123,26 +131,41 @@ class ZeroShotTransfer(KeyedState):
                 )
                 best = cands[race.best]
                 distances = [module.prediction_distances(name, best, b) for b in batches]
-                rates, eps, accepted = {}, {}, True
-                for policy in distances[0]:
-                    d = torch.cat([dist[policy] for dist in distances])
-                    eps[policy] = self.eps.get(policy, max(self.eps.values()))
-                    rates[policy] = pac_rate(d, eps[policy])
-                    accepted &= zero_shot(d, eps[policy], self.delta)
-                if accepted:
-                    module.transfer(name, best)
-                decisions.append(
-                    ZeroShotDecision(
-                        task=module.task_index,
-                        subspace=name,
-                        decision="zero-shot" if accepted else "train",
-                        pac_rate=rates,
-                        eps=eps,
-                        delta=self.delta,
-                        anchors=k,
-                        alpha=best.tolist(),
-                    )
+                out[name] = (best, {p: torch.cat([d[p] for d in distances]) for p in distances[0]})
+        return out
+
+    def tolerance(self, policy: str, family: Family) -> float:
+        """ε of ``policy`` on a task of ``family``: the one given, else the family's, else the
+        largest of those."""
+        if policy in self.eps:
+            return self.eps[policy]
+        if policy in family.pac_eps:
+            return family.pac_eps[policy]
+        return max({**family.pac_eps, **self.eps}.values())
+
+    def _transfer(self, trainer: L.Trainer, module) -> list[ZeroShotDecision]:
+        family = trainer.datamodule.task.env_family
+        decisions = []
+        for name, (best, distances) in self.best_points(module, trainer.datamodule).items():
+            rates, eps, accepted = {}, {}, True
+            for policy, d in distances.items():
+                eps[policy] = self.tolerance(policy, family)
+                rates[policy] = pac_rate(d, eps[policy])
+                accepted &= zero_shot(d, eps[policy], self.delta)
+            if accepted:
+                module.transfer(name, best)
+            decisions.append(
+                ZeroShotDecision(
+                    task=module.task_index,
+                    subspace=name,
+                    decision="zero-shot" if accepted else "train",
+                    pac_rate=rates,
+                    eps=eps,
+                    delta=self.delta,
+                    anchors=module.n_anchors(name),
+                    alpha=best.tolist(),
                 )
+            )
         return decisions
 
 

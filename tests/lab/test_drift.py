@@ -31,6 +31,12 @@ def test_a_setting_left_to_the_family_reads_as_the_familys_value():
     named = drift.family_resolved({**unset, drift.PRUNING + "eps.low": 0.2}, family)
     assert named[drift.PRUNING + "eps_low"] is None
     assert named[drift.PRUNING + "eps_high"] == family.pruning_eps["high"]
+    # the PAC criterion's tolerances, left unset, are the family's; one given stays
+    pac = {drift.TRANSFER + "eps_high": None, drift.TRANSFER + "eps_low": 0.3}
+    assert drift.family_resolved(pac, family) == {
+        drift.TRANSFER + "eps_high": family.pac_eps["high"],
+        drift.TRANSFER + "eps_low": 0.3,
+    }
     set_ = {drift.ANCHOR_INIT: "random"}
     assert drift.family_resolved(set_, FAMILIES["antmaze"])[drift.ANCHOR_INIT] == "random"
 
