@@ -91,7 +91,7 @@ def test_each_record_reads_as_its_kind():
     kinds = {
         type(d) for path in _committed("decisions.jsonl") for d in RunDir(path.parent).decisions()
     }
-    assert kinds == {LossDecision, CriticDecision}
+    assert kinds == {LossDecision, CriticDecision, ZeroShotDecision}
     critic = RunDir(CRITIC).decisions()
     assert {d.kind for d in critic} == {"critic"} and all(d.tolerance == d.eps for d in critic)
     loss = RunDir(NEW).decisions()
