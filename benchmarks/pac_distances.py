@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
+import sys
 from pathlib import Path
 from typing import NamedTuple
 
@@ -34,16 +34,15 @@ from hispo_pl.fit import run_lightning_cli
 from hispo_pl.results import LossDecision
 from hispo_pl.rundir import RunDir
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # a script of the checkout: its lab/
+from lab.drift import parseable_copy  # noqa: E402
+
 
 def run_setup(run: RunDir):
     """The run's LightningCLI (its module and first datamodule), as ``hispo-pl fit`` builds
-    them from the run's saved configuration."""
-    saved = yaml.safe_load(run.config_file.read_text())
-    for key in ("ckpt_path", "weights_only"):  # the fit subcommand's own arguments
-        saved.pop(key, None)
-    with tempfile.TemporaryDirectory() as tmp:
-        config = Path(tmp) / "config.yaml"
-        config.write_text(yaml.safe_dump(saved, sort_keys=False))
+    them from the run's saved configuration (read as ``lab config-drift`` reads one: a class
+    outside hispo-pl and Lightning is refused, not imported)."""
+    with parseable_copy(run.config_file) as (config, _):
         return run_lightning_cli(["--config", str(config), "--trainer.logger", "false"], run=False)
 
 

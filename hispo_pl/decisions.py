@@ -4,6 +4,7 @@ start without it."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -21,6 +22,23 @@ def tolerance_problem(eps: object) -> str | None:
 def _check_tolerance(eps: float) -> None:
     if tolerance_problem(eps) is not None:
         raise ValueError(f"eps must be non-negative, got {eps}")
+
+
+def resolved_tolerance(name: str, given: Mapping[str, float], family: Mapping[str, float]) -> float:
+    """The tolerance of ``name`` (a subspace or a policy): the one ``given``, else the task
+    family's, else the largest given, else the family's smallest.
+
+    Example:
+        >>> resolved_tolerance("low", {}, {"high": 0.1, "low": 0.6})
+        0.6
+        >>> resolved_tolerance("policy", {"low": 0.2}, {"high": 0.1, "low": 0.6})
+        0.2
+    """
+    if name in given:
+        return given[name]
+    if name in family:
+        return family[name]
+    return max(given.values()) if given else min(family.values())
 
 
 def keep_previous(l_prev: float, l_curr: float, eps: float) -> bool:

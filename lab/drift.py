@@ -118,16 +118,18 @@ def effective_settings(args: Sequence[str]) -> dict:
     return family_resolved(settings, parse_stream(stream)[0].env_family)
 
 
-def saved_settings(saved: Path) -> dict:
-    """:func:`effective_settings` of a run's saved ``config.yaml``, without the keys of the
-    ``fit`` subcommand (no settings of the run), which a configuration parsed without the
-    subcommand does not take. A run saves its configuration with its preset and knob flags
-    already written in, so the preset is not applied again (its overlay would undo a flag
-    that won over it); its name is kept.
+@contextlib.contextmanager
+def parseable_copy(saved: Path) -> Iterator[tuple[Path, str | None]]:
+    """A run's saved ``config.yaml`` as a file that ``hispo-pl fit``'s parser takes without the
+    subcommand: checked as ``hispo-pl fit`` checks a config file, refused unparsed when it
+    names a class outside hispo-pl and Lightning (so reading it imports nothing it names),
+    without the ``fit`` subcommand's keys (no settings of the run) and without its preset. A
+    run saves its configuration with its preset and knob flags already written in, so the
+    preset is not applied again (its overlay would undo a flag that won over it); its name is
+    yielded beside the copy, which lives while the context does.
 
     Raises:
-        UserError: the file names a class outside hispo-pl and Lightning (not imported), or
-            is refused as ``hispo-pl fit`` refuses a config file."""
+        UserError: the file names a foreign class, or is refused as a config file."""
     import yaml
 
     from hispo_pl.config_files import check_config_files
@@ -147,6 +149,16 @@ def saved_settings(saved: Path) -> dict:
     with tempfile.TemporaryDirectory() as scratch:
         copy = Path(scratch) / "config.yaml"
         copy.write_text(yaml.safe_dump(config, sort_keys=False))
+        yield copy, preset
+
+
+def saved_settings(saved: Path) -> dict:
+    """:func:`effective_settings` of a run's saved ``config.yaml`` (:func:`parseable_copy`),
+    with its preset's name.
+
+    Raises:
+        UserError: as :func:`parseable_copy`."""
+    with parseable_copy(saved) as (copy, preset):
         return {**effective_settings(["--config", str(copy)]), "preset": preset}
 
 

@@ -13,7 +13,12 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_warn
 from typing_extensions import override
 
-from ..decisions import decided_by_budget, keep_previous, tolerance_problem
+from ..decisions import (
+    decided_by_budget,
+    keep_previous,
+    resolved_tolerance,
+    tolerance_problem,
+)
 from ..results import Decision, LossDecision, SearchResult, ZeroShotDecision, rule_metrics
 from ..rundir import RunDir, task_label
 from ..tasks import Family
@@ -90,11 +95,7 @@ class SubspacePruning(KeyedState):
 
     def tolerance(self, name: str, family: Family) -> float:
         """ε of subspace ``name`` on a task of ``family``: the one given, else the family's."""
-        if name in self.eps:
-            return self.eps[name]
-        if name in family.pruning_eps:
-            return family.pruning_eps[name]
-        return max(self.eps.values()) if self.eps else min(family.pruning_eps.values())
+        return resolved_tolerance(name, self.eps, family.pruning_eps)
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:

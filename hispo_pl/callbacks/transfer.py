@@ -12,7 +12,7 @@ import torch
 from torch import Tensor
 from typing_extensions import override
 
-from ..decisions import pac_rate, zero_shot
+from ..decisions import pac_rate, resolved_tolerance, zero_shot
 from ..nn import eval_mode
 from ..nn.simplex import sample_dirichlet
 from ..race import race_subspace, resolve_precision
@@ -135,13 +135,8 @@ class ZeroShotTransfer(KeyedState):
         return out
 
     def tolerance(self, policy: str, family: Family) -> float:
-        """ε of ``policy`` on a task of ``family``: the one given, else the family's, else the
-        largest of those."""
-        if policy in self.eps:
-            return self.eps[policy]
-        if policy in family.pac_eps:
-            return family.pac_eps[policy]
-        return max({**family.pac_eps, **self.eps}.values())
+        """ε of ``policy`` on a task of ``family``: the one given, else the family's."""
+        return resolved_tolerance(policy, self.eps, family.pac_eps)
 
     def _transfer(self, trainer: L.Trainer, module) -> list[ZeroShotDecision]:
         family = trainer.datamodule.task.env_family
