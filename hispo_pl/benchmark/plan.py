@@ -408,7 +408,8 @@ def pending_runs(
     for run in runs:
         run_dir = RunDir(run.run_dir)
         old = run_dir.read_run_record() if run_dir.run_record_file.exists() else None
-        changed = old is not None and old.argv != list(run.argv)
+        # a sweep tree's branch has no launch of its own yet: nothing to compare with
+        changed = old is not None and old.argv is not None and old.argv != list(run.argv)
         if run.results_path.exists():
             note = " (it was launched with another command)" if changed else ""
             print(f"[benchmark] {run.name}: skipped, {run.results_path.name} exists{note}")

@@ -242,7 +242,10 @@ def test_the_grid_trains_a_lambda_sweep_as_a_tree(tiny_umaze, tmp_path, capsys):
     args = ["benchmark", "--grid", "lambda-tree", "--config-dir", str(configs), "--out"]
     args += [str(work), "--export", str(root), "--workers", "1"]
     assert cli_main(args) == 0
-    assert "l2-lambda10/seed0: its first 1 task(s) branched" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "l2-lambda10/seed0: its first 1 task(s) branched" in printed
+    # the branch resumes as its own first launch, not as a run launched otherwise before
+    assert "l2-lambda10/seed0: resuming an interrupted run\n" in printed
     sweeps = root / "pointmaze-1" / "sweeps"
     first, other = (RunDir(sweeps / f"l2-lambda{v}" / "seed0") for v in ("0.01", "10"))
     record = other.read_run_record()
