@@ -168,26 +168,24 @@ def test_a_branch_refuses_tasks_that_would_decide_otherwise_or_a_used_directory(
 # --- the grid's tolerance tree, end to end ----------------------------------------------------
 
 
-def _tree_grid_configs(tmp_path: Path, values: list[float]) -> Path:
+def _tree_grid_configs(tmp_path: Path, name: str, method: str, key, sweep: str, values) -> Path:
+    """A one-stream, one-seed grid whose ``method`` sweeps ``key`` over ``values`` as a tree."""
     grid = {
         "streams": ["pointmaze-1"],
-        "methods": ["hispo"],
+        "methods": [method],
         "seeds": [0],
         "steps_per_task": 20,
         "extra": [*BENCH_TINY_OVERRIDES[:1], json.dumps(STREAM), *BENCH_TINY_OVERRIDES[2:]],
-        "sweeps": {
-            "hispo": {"key": ["eps_high", "eps_low"], "name": "eps", "values": values,
-                      "branch": True}
-        },
-    }  # fmt: skip
-    return grid_config_dir(tmp_path, "tree", grid)
+        "sweeps": {method: {"key": key, "name": sweep, "values": values, "branch": True}},
+    }
+    return grid_config_dir(tmp_path, name, grid)
 
 
 @pytest.mark.e2e
 def test_the_grid_trains_a_tolerance_sweep_as_a_tree(tiny_umaze, tmp_path, capsys):
     pytest.importorskip("rliable")
     values = [0.1, 0.0, 20.0]  # 20: prunes every anchor, so it parts at the first decision
-    configs = _tree_grid_configs(tmp_path, values)
+    configs = _tree_grid_configs(tmp_path, "tree", "hispo", ["eps_high", "eps_low"], "eps", values)
     work, root = tmp_path / "work", tmp_path / "results"
     args = ["benchmark", "--grid", "tree", "--config-dir", str(configs), "--out", str(work)]
     args += ["--export", str(root), "--workers", "1"]
@@ -226,18 +224,9 @@ def test_the_grid_trains_a_tolerance_sweep_as_a_tree(tiny_umaze, tmp_path, capsy
 @pytest.mark.e2e
 def test_the_grid_trains_a_lambda_sweep_as_a_tree(tiny_umaze, tmp_path, capsys):
     pytest.importorskip("rliable")
-    grid = {
-        "streams": ["pointmaze-1"],
-        "methods": ["l2"],
-        "seeds": [0],
-        "steps_per_task": 20,
-        "extra": [*BENCH_TINY_OVERRIDES[:1], json.dumps(STREAM), *BENCH_TINY_OVERRIDES[2:]],
-        "sweeps": {
-            "l2": {"key": branch.PENALTY_KEY, "name": "lambda", "values": [0.01, 10],
-                   "branch": True}
-        },
-    }  # fmt: skip
-    configs = grid_config_dir(tmp_path, "lambda-tree", grid)
+    configs = _tree_grid_configs(
+        tmp_path, "lambda-tree", "l2", branch.PENALTY_KEY, "lambda", [0.01, 10]
+    )
     work, root = tmp_path / "work", tmp_path / "results"
     args = ["benchmark", "--grid", "lambda-tree", "--config-dir", str(configs), "--out"]
     args += [str(work), "--export", str(root), "--workers", "1"]
