@@ -36,11 +36,11 @@ from .claim_rules import (
     high_but_more_memory,
     hilow_less_memory,
     matches_with_less_memory,
-    method_stats,
     no_forgetting,
     pac_transfers,
     pnn_growth,
     slightly_below_similar_memory,
+    streams_run_by,
     table1_order,
 )
 
@@ -49,14 +49,11 @@ CLAIMS_FILE = "claims.json"  # a claims folder's two roots, relative to it: hous
 
 
 def streams_with(methods: Sequence[str]) -> Callable[[Committed], list[str]]:
-    """The streams of the paper's tables where every one of ``methods`` has a run."""
+    """The streams of the paper's tables where every one of ``methods`` has a run
+    (:func:`~lab.claim_rules.streams_run_by`: those with all their seeds first)."""
 
     def streams(committed: Committed) -> list[str]:
-        return [
-            s
-            for s in paper.PER_STREAM
-            if all(method_stats(committed, [s], m) is not None for m in methods)
-        ]
+        return streams_run_by(committed, list(paper.PER_STREAM), methods)
 
     return streams
 

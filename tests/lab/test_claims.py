@@ -136,3 +136,19 @@ def test_a_verdict_rests_only_on_the_seeds_of_the_methods_it_compares():
     assert verdict == "does not hold"  # equal MEM; CSP's one seed does not make it provisional
     _, verdict = by_text["Ablation: CSP is far below CSPO and HiSPO"].test(runs)
     assert verdict == "provisionally holds (1 seed of 3)"
+
+
+def test_a_streams_first_seed_does_not_draw_a_full_verdict_down_to_one_seed():
+    """A claim over "some stream" rests on the streams where its methods have all their seeds,
+    as the aggregate counts them; one seed on another stream does not make it provisional."""
+    three = {"hispo-pac": [0.80, 0.82, 0.81], "hispo": [0.80, 0.81, 0.79]}
+    runs = _Runs({"antmaze-1": three, "pointmaze-2": {"hispo-pac": [0.5], "hispo": [0.99]}})
+    assert rules.streams_run_by(runs, ["pointmaze-2", "antmaze-1"], tuple(three)) == ["antmaze-1"]
+    claim = next(c for c in claims.CLAIMS if c.text.startswith("PAC:"))
+    figures, verdict = claim.test(runs)
+    assert figures.endswith("(3 seeds each)") and verdict == "holds"
+    # with no stream whole, every stream with a run counts, and the verdict is provisional
+    runs = _Runs({"antmaze-1": {"hispo-pac": [0.8], "hispo": [0.8]}, "pointmaze-2": three})
+    assert rules.streams_run_by(runs, ["antmaze-1"], tuple(three)) == ["antmaze-1"]
+    _, verdict = claim.test(_Runs({"pointmaze-2": {"hispo-pac": [0.5], "hispo": [0.99]}}))
+    assert verdict == "provisionally does not hold (1 seed of 3)"
