@@ -3,6 +3,7 @@ launch a benchmark whose runs record the checkout's commit.
 
     python -m lab rebuild                       # all of the below, in order
     python -m lab grid-reports paper            # docs/results/<stream>/ tables, grid-paper/
+    python -m lab grid-reports random-streams --root docs/results/random-streams
     python -m lab claims                        # docs/results/claims/claims.md
     python -m lab manifests                     # docs/results/*/MANIFEST.md
     python -m lab rebuild-docs README.md docs/results.md   # the reports the pages embed
@@ -23,7 +24,8 @@ from hispo_pl.errors import UserError
 
 RESULTS = Path("docs/results")
 CLAIMS = RESULTS / "claims"
-GRIDS = ("paper",)  # the grids whose reports are committed under docs/results
+# the grids whose reports are committed, and the folder their runs are exported to
+GRIDS = {"paper": RESULTS, "random-streams": RESULTS / "random-streams"}
 
 
 def pages() -> list[Path]:
@@ -162,8 +164,8 @@ def run(args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace) -> None:
     if args.verb == "rebuild":
-        for name in GRIDS:
-            grid_reports(name, RESULTS)
+        for name, root in GRIDS.items():
+            grid_reports(name, root)
         claims(CLAIMS)
         manifests(RESULTS)
         rebuild_docs([])

@@ -260,8 +260,12 @@ def write_beside_paper_figure(grid: Grid, root: Path) -> Path | None:
 
 def grid_reports(grid: Grid, root: Path, committed: Committed) -> tuple[dict[str, str], list]:
     """A grid's reports as this repository commits them: the product's, the aggregates with
-    the paper's columns, the summary and the tables beside the paper's."""
+    the paper's columns, the summary and the tables beside the paper's; a grid that runs
+    none of the paper's streams (random streams) has nothing to set beside them, so only the
+    product's."""
     texts, rows = product_reports(grid, root, committed)
+    if not set(grid.streams) & set(paper.PER_STREAM):
+        return texts, rows
 
     def aggregate(sub: Grid, sub_rows: list[AggregateRow]) -> str:
         return aggregate_markdown(sub, sub_rows, PAPER_COLUMNS, aggregate_note())

@@ -57,6 +57,15 @@ def test_the_aggregate_gets_the_papers_columns_and_a_page_embeds_it(tmp_path):
     assert rebuilt == embed_reports(page, Path("/"))  # the intervals are seeded
 
 
+def test_a_grid_of_random_streams_gets_no_paper_column_summary_or_beside_paper(tmp_path):
+    grid = gr.load_grid("random-streams", ROOT / "configs")
+    written = gp.write_grid_report(grid, tmp_path, figures=False, reports=beside_paper.grid_reports)
+    names = {p.name for p in written}
+    assert {"aggregate.md", "growth.md", "grid.json"} <= names
+    assert not names & {"summary.md", "beside-paper.md"}
+    assert "paper PER" not in (tmp_path / "grid-random-streams/aggregate.md").read_text()
+
+
 def test_the_papers_point_beside_ours_is_its_mean_over_the_rows_streams(tmp_path):
     from types import SimpleNamespace
 
