@@ -24,6 +24,28 @@ def minari_home(tmp_path_factory):
         yield path
 
 
+@pytest.fixture(autouse=True)
+def _session_datasets_stay_tiny(minari_home):
+    """Fail the test that left a dataset of more than a few episodes in the session's store: a
+    fit whose tiny tasks find no data generates it at the family's default size (500
+    episodes), slowly, and every later ``tiny_umaze`` on that worker then meets a dataset it
+    did not make. Such a test asks for ``tiny_umaze`` first. The dataset is removed, so only
+    its maker fails."""
+    import json
+    import shutil
+
+    yield
+    for meta in minari_home.glob("*/*/data/metadata.json"):
+        episodes = json.loads(meta.read_text()).get("total_episodes", 0)
+        if episodes > TINY_EPISODES:
+            dataset = meta.parent.parent
+            shutil.rmtree(dataset)
+            pytest.fail(
+                f"this test generated {dataset.relative_to(minari_home)} at {episodes} episodes "
+                "in the session's Minari store; request the tiny_umaze fixture before fitting"
+            )
+
+
 @pytest.fixture(scope="session")
 def tiny_umaze(minari_home):
     """A 6-episode local pointmaze-umaze dataset, generated once, as EpisodeArrays."""

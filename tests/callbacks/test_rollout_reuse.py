@@ -42,14 +42,16 @@ def _counted_fit(method: str, save_dir, monkeypatch, reuse: bool) -> tuple[dict,
         ("scn", 5),
     ],
 )
-def test_a_row_reuses_rollouts_of_an_unchanged_policy(method, rollouts, tmp_path, monkeypatch):
+def test_a_row_reuses_rollouts_of_an_unchanged_policy(
+    method, rollouts, tiny_umaze, tmp_path, monkeypatch
+):
     reused, ran = _counted_fit(method, tmp_path / "reuse", monkeypatch, reuse=True)
     fresh, all_ran = _counted_fit(method, tmp_path / "fresh", monkeypatch, reuse=False)
     assert all_ran == len(REPEATED) ** 2 and ran == rollouts
     assert without_times(reused) == without_times(fresh)
 
 
-def test_hispo_reuses_nothing_across_a_grown_subspace(tmp_path, monkeypatch):
+def test_hispo_reuses_nothing_across_a_grown_subspace(tiny_umaze, tmp_path, monkeypatch):
     reused, ran = _counted_fit("hispo", tmp_path / "reuse", monkeypatch, reuse=True)
     fresh, _ = _counted_fit("hispo", tmp_path / "fresh", monkeypatch, reuse=False)
     assert without_times(reused) == without_times(fresh)

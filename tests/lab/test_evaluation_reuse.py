@@ -11,7 +11,7 @@ evaluation_reuse = load_benchmark("evaluation_reuse")
 REPEATED = ["pointmaze-umaze-N[3]", "pointmaze-umaze-PO[3]", "pointmaze-umaze-N[3]"]
 
 
-def test_rows_measured_again_are_the_runs_r(tmp_path):
+def test_rows_measured_again_are_the_runs_r(tiny_umaze, tmp_path):
     results, run_dir = fit_tiny_stream("scn", tmp_path, REPEATED)
     reused, every = evaluation_reuse.measure_rows(RunDir(run_dir))
     assert reused.rows == every.rows == results["R"]
