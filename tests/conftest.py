@@ -26,16 +26,18 @@ def minari_home(tmp_path_factory):
 
 @pytest.fixture(autouse=True)
 def _session_datasets_stay_tiny(minari_home):
-    """Fail the test that left a dataset of more than a few episodes in the session's store: a
-    fit whose tiny tasks find no data generates it at the family's default size (500
-    episodes), slowly, and every later ``tiny_umaze`` on that worker then meets a dataset it
-    did not make. Such a test asks for ``tiny_umaze`` first. The dataset is removed, so only
-    its maker fails."""
+    """Fail the test that left one of our expert datasets (a user's own may be of any size) of
+    more than a few episodes in the session's store: a fit whose tiny tasks find no data
+    generates it at the family's default size (500 episodes), slowly, and every later
+    ``tiny_umaze`` on that worker then meets a dataset it did not make. Such a test asks for
+    ``tiny_umaze`` first. The dataset is removed, so only its maker fails."""
     import json
     import shutil
 
+    from hispo_pl.data.datasets import NAMESPACE
+
     yield
-    for meta in minari_home.glob("*/*/data/metadata.json"):
+    for meta in minari_home.glob(f"{NAMESPACE}/*/data/metadata.json"):
         episodes = json.loads(meta.read_text()).get("total_episodes", 0)
         if episodes > TINY_EPISODES:
             dataset = meta.parent.parent
