@@ -3,8 +3,8 @@ draws (:mod:`.growth_report`, :mod:`.growth_figures`): MEM after each task, meas
 of the methods that decide their memory (HiSPO, CSPO, HiLOW: each run's ``mem_per_task``) and
 grown from the structure of those whose memory follows from it (SCN, FTN, PNN: :mod:`.growth`);
 PER after each task from each run's success matrix; the anchors held after each task; the
-anchors each task's search weighed and the seconds it took; and how a curve grows
-(:class:`Growth`).
+anchors each task's search weighed and the seconds it took; the MEM added on new tasks and on
+repeats; and how a curve grows (:class:`Growth`).
 
     data = growth_data(grid, Committed(root))
 """
@@ -44,6 +44,43 @@ def per_after_each_task(R: Sequence[Sequence[float | None]]) -> list[float]:
         [1.0, 0.75]
     """
     return [float(np.mean([float(v) for v in row[: k + 1]])) for k, row in enumerate(R)]
+
+
+def repeats_of(stream: Sequence[str]) -> list[bool]:
+    """Whether each task of a stream repeats an earlier one (the same task): a random stream
+    draws with replacement, so its later tasks are repeats more often, and a memory that grows
+    only on new tasks slows down for that reason alone.
+
+    Example:
+        >>> repeats_of(["pointmaze-umaze-N[9]", "pointmaze-large-N[9]", "pointmaze-umaze-N[9]"])
+        [False, False, True]
+    """
+    seen: set[str] = set()
+    repeats = []
+    for task in stream:
+        repeats.append(task in seen)
+        seen.add(task)
+    return repeats
+
+
+def memory_added(runs: Sequence[RunCurves]) -> dict[bool, tuple[float, int]]:
+    """The MEM a task adds (after the first), pooled over ``runs``: keyed by whether the task
+    repeats an earlier one, the mean added and the number of such tasks; a kind no run has is
+    left out.
+
+    Example:
+        >>> run = RunCurves("s", "m", 0, [1.0, 2.0, 2.0, 2.5], [1.0] * 4, None,
+        ...                 repeats=[False, False, True, False])
+        >>> memory_added([run])
+        {False: (0.75, 2), True: (0.0, 1)}
+    """
+    added: dict[bool, list[float]] = {False: [], True: []}
+    for run in runs:
+        if run.memory is None:
+            continue
+        for k in range(1, min(len(run.memory), len(run.repeats))):
+            added[run.repeats[k]].append(run.memory[k] - run.memory[k - 1])
+    return {kind: (float(np.mean(v)), len(v)) for kind, v in added.items() if v}
 
 
 def anchors_after_each_task(decisions: Sequence[Decision], n_tasks: int) -> list[int] | None:
@@ -125,6 +162,7 @@ class RunCurves:
     searched: list[int | None] = field(default_factory=list)
     search_seconds: list[float | None] = field(default_factory=list)
     wall_seconds: list[float | None] = field(default_factory=list)
+    repeats: list[bool] = field(default_factory=list)  # per task: a repeat of an earlier one
 
 
 @dataclass
@@ -180,6 +218,7 @@ def growth_data(grid, committed, config_dir: Path | None = None) -> GrowthData:
                         anchors_searched_each_task(record.decisions, n),
                         [(p or {}).get("search") for p in phases],
                         list(results.wall_time_s or [None] * n),
+                        repeats_of(results.stream),
                     )
                 )
     structure = {}

@@ -30,6 +30,7 @@ from .growth_curves import (
     _mean_curve,
     anchors_after_each_task,
     has_random_streams,
+    memory_added,
 )
 
 # --- the report's text --------------------------------------------------------------------------
@@ -159,11 +160,19 @@ def _sentence(method: str, family: str, data: GrowthData) -> str | None:
     if mem.first_half is None or mem.last_half is None:
         shape = f"ends at MEM {mem.final:.2f}"
     else:
-        slowing = "slowing: sublinear" if mem.last_half < mem.first_half else "not slowing"
+        slowing = "slowing" if mem.last_half < mem.first_half else "not slowing"
         shape = (
             f"adds {mem.last_half:.2f} MEM per task over the last half of a stream against "
             f"{mem.first_half:.2f} over the first ({slowing}) and ends at {mem.final:.2f}"
         )
+    added = memory_added(runs)
+    kinds = [
+        f"{added[repeat][0]:.2f} per {name} ({added[repeat][1]})"
+        for repeat, name in ((False, "new task after the first"), (True, "repeat"))
+        if repeat in added
+    ]
+    if kinds:
+        shape += ": " + " and ".join(kinds)
     return f"{text} {shape}; PER after the last task {per:.1f}."
 
 

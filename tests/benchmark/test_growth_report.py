@@ -14,7 +14,14 @@ from helpers import fit_tiny_stream
 
 from hispo_pl.benchmark.grid import grid_from_dict, load_grid
 from hispo_pl.benchmark.grid_report import Committed, grid_reports, write_grid_report
-from hispo_pl.benchmark.growth_curves import Growth, growth_data, per_after_each_task
+from hispo_pl.benchmark.growth_curves import (
+    Growth,
+    RunCurves,
+    growth_data,
+    memory_added,
+    per_after_each_task,
+    repeats_of,
+)
 from hispo_pl.benchmark.growth_report import (
     findings_markdown,
     growth_markdown,
@@ -67,6 +74,22 @@ def test_growth_halves_and_per_after_each_task():
     assert per_after_each_task([[0.5, None], [1.0, 0.0]]) == [0.5, 0.5]
 
 
+def test_memory_added_on_repeats_is_told_from_that_on_new_tasks():
+    """A random stream draws with replacement: MEM that grows on new tasks only slows down as
+    repeats come, so what a task adds is pooled apart for the two kinds."""
+    stream = ["pointmaze-umaze-N[9]", "pointmaze-large-N[9]", "pointmaze-umaze-N[9]"]
+    assert repeats_of([*stream, "pointmaze-large-N[9]"]) == [False, False, True, True]
+    runs = [
+        RunCurves("s", "hispo", seed, memory, [1.0] * 4, None, repeats=repeats_of(stream))
+        for seed, memory in ((0, [1.0, 2.0, 2.0]), (1, [1.0, 1.5, 2.5]))
+    ]
+    assert memory_added(runs) == {False: (0.75, 2), True: (0.5, 2)}
+    assert memory_added(runs[:1] + [RunCurves("s", "scn", 0, None, [1.0], None)]) == {
+        False: (1.0, 1),
+        True: (0.0, 1),
+    }
+
+
 @pytest.mark.e2e
 def test_the_report_reads_each_run_s_files(committed_runs):
     grid = _grid()
@@ -90,6 +113,11 @@ def test_the_report_reads_each_run_s_files(committed_runs):
     findings = findings_markdown(grid, data)
     for method in METHODS:
         assert f"{method} (1 run)" in findings
+    # the tiny stream's four tasks are all new: what each added after the first, no repeat
+    hispo_mem = _results(committed_runs, "hispo")["mem_per_task"]
+    added = (hispo_mem[-1] - hispo_mem[0]) / 3
+    assert f"{added:.2f} per new task after the first (3)" in findings
+    assert "per repeat" not in findings
     assert f"pnn {float(structure['pnn'][3]):.2f} after 4 tasks" in findings
 
 
