@@ -110,10 +110,9 @@ def streams_run_by(
     has :data:`MIN_SEEDS` seeds, if any stream has, else all of them (a provisional verdict).
     A claim over "some stream" is thus judged as the aggregate counts a method, and a stream's
     first seed does not draw a verdict on full seeds down to one."""
-    ran = [s for s in streams if all(method_stats(committed, [s], m) for m in methods)]
-    full = [
-        s for s in ran if all(method_stats(committed, [s], m).seeds >= MIN_SEEDS for m in methods)
-    ]
+    stats = {s: [method_stats(committed, [s], m) for m in methods] for s in streams}
+    ran = [s for s in streams if all(stats[s])]
+    full = [s for s in ran if all(x.seeds >= MIN_SEEDS for x in stats[s])]
     return full or ran
 
 
