@@ -67,6 +67,17 @@ def _task_axis(ax) -> None:
     ax.grid(alpha=0.3)
 
 
+def _structural_lines(data: GrowthData, family: str) -> list[tuple[list[str], list[float]]]:
+    """The family's structural curves, methods with the same curve on one line (SCN and FTN
+    both hold one network per task: drawn apart, one would hide the other)."""
+    lines: dict[tuple[float, ...], list[str]] = {}
+    for method in STRUCTURAL:
+        grown = data.structure.get((family, method))
+        if grown is not None:
+            lines.setdefault(tuple(grown), []).append(method)
+    return [(methods, list(grown)) for grown, methods in lines.items()]
+
+
 def memory_growth_figure(grid, data: GrowthData):
     """MEM against tasks, one panel per family: the measured methods' runs and their mean,
     the structural methods dashed; PNN's line leaves the top once it exceeds one network per
@@ -80,19 +91,16 @@ def memory_growth_figure(grid, data: GrowthData):
             if curves and method not in STRUCTURAL:
                 _draw(ax, curves, styles[method], method, z=3 + len(grid.methods) - i)
                 top = max(top, *(max(c) for c in curves))
-        for method in STRUCTURAL:
-            grown = data.structure.get((family, method))
-            if grown is None:
-                continue
+        for methods, grown in _structural_lines(data, family):
             ax.plot(
                 range(1, len(grown) + 1),
                 grown,
                 ls="--",
                 lw=1.2,
-                color=styles[method]["color"],
-                label=f"{method} (structure)",
+                color=styles[methods[0]]["color"],
+                label=f"{' = '.join(methods)} (structure)",
             )
-            if method != "pnn":
+            if "pnn" not in methods:
                 top = max(top, max(grown))
         scn = [r.memory for r in data.of(family, "scn") if r.memory is not None]
         for curve in scn:

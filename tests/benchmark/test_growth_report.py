@@ -184,6 +184,19 @@ def test_the_grid_report_writes_the_figures_a_page_embeds(committed_runs, tmp_pa
     assert "growth.md" not in grid_reports(named, root)[0]
 
 
+def test_the_memory_figure_draws_one_line_for_structures_that_grow_alike(committed_runs):
+    pytest.importorskip("matplotlib")
+    from hispo_pl.benchmark.growth_figures import memory_growth_figure
+
+    grid = _grid()
+    data = growth_data(grid, Committed(committed_runs))
+    _, labels = memory_growth_figure(grid, data).axes[0].get_legend_handles_labels()
+    # one network per task: SCN and FTN grow alike, so one dashed line names both
+    assert "scn = ftn (structure)" in labels and "pnn (structure)" in labels
+    assert not {"scn (structure)", "ftn (structure)"} & set(labels)
+    assert "scn measured (1 run)" in labels
+
+
 def test_a_page_embeds_the_report_of_a_grid_before_its_runs(tmp_path, monkeypatch):
     monkeypatch.chdir(ROOT)  # the shipped grid definitions, as from a checkout
     grid = load_grid("random-streams", ROOT / "configs")
