@@ -88,6 +88,22 @@ def previous_subspace_candidates(
     return torch.cat([draws, torch.zeros(n, 1)], dim=1)
 
 
+def stored_task_points(task_alphas: Tensor, n_tasks: int) -> Tensor:
+    """The weights the first ``n_tasks`` tasks act with, as points of the previous subspace
+    (rows of ``task_alphas`` [tasks, K], whose newest anchor is 0 for every earlier task), each
+    once, in task order: shape [m, K]. A task that repeats an earlier one finds that task's own
+    point among them; a Dirichlet(1) draw over many anchors rarely lands near one."""
+    import torch
+
+    rows = task_alphas[:n_tasks]
+    rows = rows[rows[:, -1] == 0] if rows.shape[1] > 1 else rows[:0]
+    kept: list[Tensor] = []
+    for row in rows:
+        if not any(torch.equal(row, k) for k in kept):
+            kept.append(row)
+    return torch.stack(kept) if kept else rows[:0]
+
+
 def extended_subspace_candidates(
     n: int, trained: Tensor, generator: torch.Generator | None = None
 ) -> Tensor:

@@ -44,12 +44,16 @@ def race_candidates(
     probe: Batch | None = None,
     survivors: int | None = 64,
     tick: Callable[[], None] | None = None,
+    seeded: int = 0,
 ) -> RaceOutcome:
     """Rank ``candidates`` [S, K] by ``score(candidates, probe)`` (losses [S]), then score the
     ``survivors`` lowest on every batch and average.
 
     ``survivors=None`` (or ≥ S), or no probe, scores every candidate on every batch: the
-    exhaustive search. ``tick`` is called after the probe and after each batch (progress).
+    exhaustive search. The first ``seeded`` candidates are scored on every batch whatever
+    their probe rank (points known in advance, not to be lost to a probe's noise), besides the
+    ``survivors`` best of the others. ``tick`` is called after the probe and after each batch
+    (progress).
     """
     tick = tick or (lambda: None)
     if not batches:
@@ -57,11 +61,12 @@ def race_candidates(
     if survivors is not None and survivors < 1:
         raise ValueError(f"survivors must be positive (or None for all), got {survivors}")
     n = len(candidates)
-    if probe is None or survivors is None or survivors >= n:
+    if probe is None or survivors is None or survivors >= n - seeded:
         order, probe_losses = torch.arange(n, device=candidates.device), None
     else:
         probe_losses = score(candidates, probe)
-        order = probe_losses.argsort()[:survivors]
+        drawn = probe_losses[seeded:].argsort()[:survivors] + seeded
+        order = torch.cat([torch.arange(seeded, device=drawn.device), drawn])
         tick()
     kept = candidates[order]
     total = 0
@@ -96,6 +101,7 @@ def race_subspace(
     loss: Literal["mse", "nll"] = "mse",
     precision: Literal["32", "bf16"] = "32",
     tick: Callable[[], None] | None = None,
+    seeded: int = 0,
 ) -> RaceOutcome:
     """:func:`race_candidates` over weight vectors of one subspace of ``module`` (its
     :class:`~hispo_pl.callbacks.protocols.SearchableSubspaces`), scored by its
@@ -104,4 +110,4 @@ def race_subspace(
     def score(alphas: Tensor, batch: dict[str, Tensor]) -> Tensor:
         return module.score_alphas(subspace, alphas, batch, loss=loss, precision=precision)
 
-    return race_candidates(score, candidates, batches, probe, survivors, tick)
+    return race_candidates(score, candidates, batches, probe, survivors, tick, seeded)

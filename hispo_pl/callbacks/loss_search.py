@@ -12,14 +12,18 @@ import torch
 from torch import Tensor
 from typing_extensions import override
 
-from ..decisions import extended_subspace_candidates, previous_subspace_candidates
+from ..decisions import (
+    extended_subspace_candidates,
+    previous_subspace_candidates,
+    stored_task_points,
+)
 from ..errors import TrainingDivergedError
 from ..nn import eval_mode
 from ..progress import ProgressPrinter
 from ..race import RaceOutcome, race_subspace, resolve_precision
 from ..results import SearchResult
 from ..rundir import RunDir, task_label
-from .protocols import SearchableSubspaces, require_subspaces
+from .protocols import SearchableSubspaces, WeightedSubspaces, require_subspaces
 from .state import KeyedState
 
 
@@ -91,6 +95,11 @@ class DirichletEvaluation(KeyedState):
             lie nearer the new anchor (docs/method.md).
         convergence_window: share of the task's last steps over which the convergence
             diagnostic is measured (0: off).
+        stored_points: also race, for ``L_prev``, the weights every earlier task acts with,
+            each scored on every batch whatever its probe rank. A task that repeats an earlier
+            one then finds that task's own point, however many anchors the subspace holds
+            (Dirichlet(1) draws over many anchors almost never land near it). Not in the paper
+            or the authors' code; the default leaves the search as theirs.
     """
 
     # the arguments that tell two instances apart: its checkpoint entry's key
@@ -119,6 +128,7 @@ class DirichletEvaluation(KeyedState):
         every_n_steps: int = 0,
         refine_current: bool = True,
         convergence_window: float = 0.2,
+        stored_points: bool = False,
     ):
         if every_n_steps < 0:
             raise ValueError(
@@ -136,11 +146,14 @@ class DirichletEvaluation(KeyedState):
         self.every_n_steps = every_n_steps
         self.refine_current = refine_current
         self.convergence_window = convergence_window
+        self.stored_points = stored_points
         self._l_window: dict[str, float] = {}  # L_curr per subspace when the window opened
 
     @override
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         require_subspaces(pl_module, SearchableSubspaces, type(self).__name__)
+        if self.stored_points:
+            require_subspaces(pl_module, WeightedSubspaces, f"{type(self).__name__}(stored_points)")
         self._l_window = {}
 
     @override
@@ -216,7 +229,7 @@ class DirichletEvaluation(KeyedState):
         with module.task_record.timed("search"), eval_mode(module), counter:
             for name in names:  # a transferred one (zero-shot) has nothing trained to compare
 
-                def race(cands, probe=probe, name=name, batches=batches):
+                def race(cands, probe=probe, name=name, batches=batches, seeded=0):
                     return race_subspace(
                         module,
                         name,
@@ -227,6 +240,7 @@ class DirichletEvaluation(KeyedState):
                         self.loss,
                         precision,
                         counter.update,
+                        seeded,
                     )
 
                 alpha_curr = module.current_alpha(name).to(device)
@@ -235,8 +249,10 @@ class DirichletEvaluation(KeyedState):
                 k = module.n_anchors(name)
                 cands, outcome = None, None
                 if k > 1 and prev:
-                    cands = previous_subspace_candidates(self.n_candidates, k, generator).to(device)
-                    outcome = race(cands)
+                    cands = previous_subspace_candidates(self.n_candidates, k, generator)
+                    stored = self._stored(module, name, k)
+                    cands = torch.cat([stored, cands]).to(device)
+                    outcome = race(cands, seeded=len(stored))
                     result.l_prev, result.alpha_prev = (
                         outcome.best_loss,
                         cands[outcome.best].tolist(),
@@ -260,6 +276,14 @@ class DirichletEvaluation(KeyedState):
                         result.l_prev_train = float(on_train.losses[1])
                 results[name] = result
         return results
+
+    def _stored(self, module, name: str, anchors: int) -> Tensor:
+        """The earlier tasks' points raced first (none unless ``stored_points``, and none with
+        one previous anchor, whose only point is already the candidate)."""
+        if not self.stored_points or anchors < 3:
+            return torch.zeros(0, anchors)
+        rows = module.task_alphas(name).detach().cpu().float()
+        return stored_task_points(rows, module.task_index)
 
     def _batches_scored(self, anchors: int, prev: bool, held_out: int, train: int) -> int:
         """How many batches (and probes) one subspace's search scores, what its progress

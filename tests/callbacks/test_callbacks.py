@@ -244,6 +244,31 @@ def test_kept_anchors_grow_the_search_to_the_previous_simplex(first_task, tmp_pa
             np.testing.assert_allclose(d.alpha_prev, f["alphas"][best])
 
 
+def test_a_repeated_task_finds_its_own_point_among_the_stored_ones(
+    first_task, tmp_path, monkeypatch
+):
+    monkeypatch.setattr(subspace_callbacks, "keep_previous", lambda *args: False)
+    repeat = [STREAM[0], STREAM[1], STREAM[0]]  # task 2 is task 0 again
+    callbacks = _callbacks()
+    callbacks[1] = DirichletEvaluation(n_candidates=32, n_batches=2, stored_points=True)
+    module = _after_first_task()
+    module.load_checkpoint_file(first_task["ckpt"])
+    for k in (1, 2):
+        _fit(module, k, tmp_path, callbacks, stream=repeat)
+    first = {d.subspace: d for d in RunDir(first_task["root"]).decisions()}
+    for d in RunDir(tmp_path).decisions()[2:]:
+        with np.load(tmp_path / "search" / f"task_03_{d.subspace}.npz") as f:
+            alphas, losses = f["alphas"], f["losses"]
+        rows = module.task_alphas(d.subspace)[:2, :].numpy()  # tasks 0 and 1, before task 2
+        # the earlier tasks' points are raced first and scored on every batch ...
+        np.testing.assert_array_equal(alphas[:2], rows)
+        assert alphas.shape == (2 + 32, 3) and d.l_prev == pytest.approx(float(losses.min()))
+        # ... so the repeat scores task 0's own point as task 0 was scored: its loss
+        assert losses[0] == pytest.approx(first[d.subspace].l_curr, rel=1e-5)
+        assert d.l_prev <= losses[0]
+
+
+# --- the decision itself ------------------------------------------------------------------------
 # --- the decision itself ------------------------------------------------------------------------
 
 

@@ -5,7 +5,12 @@ from __future__ import annotations
 import pytest
 import torch
 
-from hispo_pl.decisions import keep_previous, previous_subspace_candidates, tolerance_problem
+from hispo_pl.decisions import (
+    keep_previous,
+    previous_subspace_candidates,
+    stored_task_points,
+    tolerance_problem,
+)
 
 # --- keep_previous: prune the new anchor iff L_prev <= (1 + eps) * L_curr -------------------
 
@@ -119,3 +124,19 @@ def test_the_rules_callbacks_refuse_a_tolerance_by_the_one_check(bad):
         SubspacePruning(eps_low=bad)
     with pytest.raises(ValueError, match="must be >= 0"):
         CriticPruning(eps=bad)
+
+
+def test_stored_task_points_are_the_earlier_tasks_weights_each_once():
+    rows = torch.tensor(
+        [
+            [1.0, 0.0, 0.0],  # task 0
+            [0.25, 0.75, 0.0],  # task 1
+            [1.0, 0.0, 0.0],  # task 2 took task 0's point again
+            [0.25, 0.25, 0.5],  # the current task: not an earlier one
+        ]
+    )
+    assert stored_task_points(rows, 3).tolist() == [[1.0, 0.0, 0.0], [0.25, 0.75, 0.0]]
+    assert stored_task_points(rows, 0).shape == (0, 3)
+    # a row on the newest anchor is no point of the previous subspace
+    assert stored_task_points(rows, 4).tolist() == [[1.0, 0.0, 0.0], [0.25, 0.75, 0.0]]
+    assert stored_task_points(torch.ones(2, 1), 2).shape == (0, 1)  # one anchor: none

@@ -101,3 +101,18 @@ def test_bf16_scores_track_float32_scores():
     bf16 = m.score_alphas("low", alphas, batch, precision="bf16")
     assert bf16.dtype == torch.float32
     torch.testing.assert_close(bf16, fp32, rtol=2e-2, atol=1e-4)
+
+
+def test_seeded_candidates_are_scored_on_every_batch_whatever_their_probe_rank():
+    cands = sample_dirichlet(200, 3, torch.Generator().manual_seed(4))
+    target = torch.tensor([0.3, 0.3, 0.4])
+    far = torch.tensor([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # worst on the probe
+    score, calls = _quadratic_score(target, noise=1e-3)
+    race = race_candidates(score, torch.cat([far, cands]), [0, 1], probe=5, survivors=10, seeded=2)
+    assert calls == [(5, 202)] + [(b, 12) for b in range(2)]
+    assert race.survivors[:2].tolist() == [0, 1]  # kept though they rank last on the probe
+    assert set(race.probe_losses.argsort()[-2:].tolist()) == {0, 1}
+    drawn = race.probe_losses[2:].argsort()[:10] + 2
+    assert race.survivors[2:].tolist() == drawn.tolist()  # the others race as before
+    plain = race_candidates(score, cands, [0, 1], probe=5, survivors=10)
+    torch.testing.assert_close(race.losses[2:], plain.losses)
