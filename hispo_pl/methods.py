@@ -50,7 +50,7 @@ class Knob:
 
     flag: str
     help: str
-    kind: type[int] | type[float]
+    kind: type[int] | type[float] | type[bool]
     targets: Mapping[type[Callback], str]
 
 
@@ -85,6 +85,13 @@ SEARCH = (
         int,
         {DirichletEvaluation: "n_batches", CriticEvaluation: "n_batches"},
     ),
+)
+STORED_POINTS = Knob(
+    "search_stored_points",
+    "also race the weights earlier tasks act with, so a repeated task finds its own point; "
+    "not the paper's search (DirichletEvaluation)",
+    bool,
+    {DirichletEvaluation: "stored_points"},
 )
 EVALUATION = (
     Knob(
@@ -290,7 +297,7 @@ PAPER_SUBSPACE_CALLBACKS = {
     DirichletEvaluation: {"refine_current": False},
     SubspacePruning: {"eps_high": 0.1, "eps_low": 0.1},
 }
-SUBSPACE_KNOBS = (EPS_HIGH, EPS_LOW, *SEARCH, *EVALUATION)
+SUBSPACE_KNOBS = (EPS_HIGH, EPS_LOW, *SEARCH, STORED_POINTS, *EVALUATION)
 
 register(MethodSpec(GoalConditionedBC, method_class_name))
 register(MethodSpec(HBC, "HBC"))

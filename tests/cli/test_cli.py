@@ -276,11 +276,13 @@ def test_method_knobs_reach_their_callbacks(tmp_path):
         "--config", str(ROOT / "configs/methods/hispo.yaml"),
         "--trainer.logger.init_args.save_dir", str(tmp_path),
         "--eps_low", "0.25", "--search_candidates", "64", "--eval_episodes", "7",
+        "--search_stored_points", "true",
     ]  # fmt: skip
     cli = _instantiated(args)
     by_type = {type(cb): cb for cb in cli.trainer.callbacks}
     assert by_type[SubspacePruning].eps == {"low": 0.25}  # the high one: the family's
     assert by_type[DirichletEvaluation].n_candidates == 64
+    assert by_type[DirichletEvaluation].stored_points is True
     assert by_type[RolloutEvaluation].episodes == 7
     # the saved configuration holds the effective values, not the flags
     assert cli.config["eps_low"] is None
@@ -309,6 +311,8 @@ def test_a_knob_the_method_lacks_is_refused(capsys):
     assert main(args) == 2
     err = capsys.readouterr().err
     assert "--eps_low: no callback of this method takes it" in err and "SubspacePruning" in err
+    assert main([*args[:-2], "--search_stored_points", "true"]) == 2
+    assert "--search_stored_points: no callback" in capsys.readouterr().err
 
 
 def test_acting_on_another_task_than_the_policys_own_is_named(tmp_path):
