@@ -25,6 +25,7 @@ from .growth_report import (
     findings_markdown,
     growth_markdown,
     memory_per_task_markdown,
+    repeats_markdown,
     search_time_markdown,
 )
 from .tables import derived_footnote, derived_method
@@ -227,7 +228,7 @@ def plot_iqm_vs_memory(rows: Sequence[AggregateRow], path: Path, title: str) -> 
     return True
 
 
-GROWTH_REPORTS = ("growth.md", "growth-findings.md", "search-time.md")  # a random grid's
+GROWTH_REPORTS = ("growth.md", "growth-findings.md", "search-time.md", "repeats.md")  # random
 
 
 def growth(grid: Grid, committed: Committed):
@@ -269,6 +270,7 @@ def grid_reports(
                     growth_markdown(grid, data),
                     findings_markdown(grid, data),
                     search_time_markdown(grid, data),
+                    repeats_markdown(grid, data),
                 ),
                 strict=True,
             )

@@ -4,7 +4,8 @@ of the methods that decide their memory (HiSPO, CSPO, HiLOW: each run's ``mem_pe
 grown from the structure of those whose memory follows from it (SCN, FTN, PNN: :mod:`.growth`);
 PER after each task from each run's success matrix; the anchors held after each task; the
 anchors each task's search weighed and the seconds it took; the MEM added on new tasks and on
-repeats; and how a curve grows (:class:`Growth`).
+repeats, and each decision on a repeat beside what the earlier task's own weights score
+(:class:`RepeatCheck`); and how a curve grows (:class:`Growth`).
 
     data = growth_data(grid, Committed(root))
 """
@@ -81,6 +82,83 @@ def memory_added(runs: Sequence[RunCurves]) -> dict[bool, tuple[float, int]]:
         for k in range(1, min(len(run.memory), len(run.repeats))):
             added[run.repeats[k]].append(run.memory[k] - run.memory[k - 1])
     return {kind: (float(np.mean(v)), len(v)) for kind, v in added.items() if v}
+
+
+@dataclass(frozen=True)
+class RepeatCheck:
+    """A subspace's decision on a task that repeats an earlier one, beside the loss the
+    earlier task's own weights score there (``own``; None when no earlier decision recorded
+    one). The same task gives the same held-out batches and the anchors those weights mix are
+    frozen, so they score on the repeat what they scored when they were chosen: ``l_curr`` of
+    an earlier task that kept its anchor, ``l_prev`` of one that pruned it (the lowest over
+    the task's earlier occurrences)."""
+
+    task: int  # the repeat, 0-based
+    earlier: int  # its latest earlier occurrence, 0-based
+    subspace: str
+    decision: str
+    eps: float
+    l_curr: float
+    l_prev: float | None
+    own: float | None
+
+    @property
+    def own_prunes(self) -> bool | None:
+        """Whether the pruning rule takes the earlier task's own weights (what the search finds
+        with ``stored_points``); None without them."""
+        from ..decisions import keep_previous
+
+        return None if self.own is None else keep_previous(self.own, self.l_curr, self.eps)
+
+
+def _chosen_loss(d: LossDecision) -> float | None:
+    """The held-out loss of the weights a decision stores for its task."""
+    return d.l_prev if d.decision == "prune" else d.l_curr
+
+
+def repeat_checks(stream: Sequence[str], decisions: Sequence[Decision]) -> list[RepeatCheck]:
+    """Every loss decision a run took on a task that repeats an earlier one of ``stream``, in
+    task order, each with the loss the earlier task's own weights score on it
+    (:class:`RepeatCheck`).
+
+    Example:
+        >>> from hispo_pl.results import LossDecision
+        >>> d = [LossDecision(task=0, subspace="high", decision="first", l_curr=0.2),
+        ...      LossDecision(task=1, subspace="high", decision="keep", eps=0.1, l_curr=0.3,
+        ...                   l_prev=0.5)]
+        >>> [(c.own, c.own_prunes) for c in repeat_checks(["a", "a"], d)]
+        [(0.2, True)]
+    """
+    occurrences: dict[str, list[int]] = {}
+    for k, task in enumerate(stream):
+        occurrences.setdefault(task, []).append(k)
+    loss = [d for d in decisions if isinstance(d, LossDecision) and d.l_curr is not None]
+    checks = []
+    for d in loss:
+        if not 0 <= d.task < len(stream):
+            continue
+        earlier = [k for k in occurrences[stream[d.task]] if k < d.task]
+        if not earlier or d.eps is None:
+            continue
+        owns = [
+            own
+            for e in loss
+            if e.task in earlier and e.subspace == d.subspace
+            if (own := _chosen_loss(e)) is not None
+        ]
+        checks.append(
+            RepeatCheck(
+                d.task,
+                earlier[-1],
+                d.subspace,
+                d.decision,
+                float(d.eps),
+                float(d.l_curr),
+                d.l_prev,
+                min(owns) if owns else None,
+            )
+        )
+    return checks
 
 
 def anchors_after_each_task(decisions: Sequence[Decision], n_tasks: int) -> list[int] | None:
@@ -163,6 +241,7 @@ class RunCurves:
     search_seconds: list[float | None] = field(default_factory=list)
     wall_seconds: list[float | None] = field(default_factory=list)
     repeats: list[bool] = field(default_factory=list)  # per task: a repeat of an earlier one
+    repeat_checks: list[RepeatCheck] = field(default_factory=list)  # decisions on the repeats
 
 
 @dataclass
@@ -219,6 +298,7 @@ def growth_data(grid, committed, config_dir: Path | None = None) -> GrowthData:
                         [(p or {}).get("search") for p in phases],
                         list(results.wall_time_s or [None] * n),
                         repeats_of(results.stream),
+                        repeat_checks(results.stream, record.decisions),
                     )
                 )
     structure = {}

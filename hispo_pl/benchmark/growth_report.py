@@ -7,7 +7,8 @@ runs; PER after each task comes from each run's success matrix. The grid report 
 a grid with a random stream (:func:`~.growth_curves.has_random_streams`): ``growth.md`` (the
 fitted growth per method and stream, the check, the runs not committed yet), ``growth-findings.md``
 (what the runs show, in sentences filled from them), ``search-time.md`` (the seconds a task's
-search takes against the anchors it weighs), ``memory_growth.png`` and ``per_after_task.png``.
+search takes against the anchors it weighs), ``repeats.md`` (the decisions on repeated tasks
+beside the earlier task's own weights), ``memory_growth.png`` and ``per_after_task.png``.
 Here: the report's text; the curves it reads are :mod:`.growth_curves`'s, its figures
 :mod:`.growth_figures`'s.
 
@@ -254,6 +255,50 @@ def search_time_markdown(grid, data: GrowthData) -> str:
         "the committed runs' tasks that searched that many anchors; its share of the task's "
         "wall time (training, search, evaluation). Anchors searched: the weights of the grown "
         "subspace's best point, summed over the subspaces searched.\n",
+    ]
+    return "\n".join(lines)
+
+
+def repeats_markdown(grid, data: GrowthData) -> str:
+    """Whether the methods recognise a task they met before: every decision the committed runs
+    took on a repeated task, the best point the search found and the earlier task's own
+    weights each against ``L_curr``, and how many of the new anchors kept on a repeat those
+    weights would have pruned (:class:`~.growth_curves.RepeatCheck`)."""
+    lines = [f"# Repeated tasks: grid {grid.name}\n"]
+    order = {m: i for i, m in enumerate(grid.methods)}
+    runs = sorted(data.runs, key=lambda r: (r.stream, order.get(r.method, 99), r.seed))
+    checks = [(r, c) for r in runs for c in r.repeat_checks]
+    if not checks:
+        lines.append("No committed run has decided on a repeated task yet.\n")
+        return "\n".join(lines)
+    lines += [
+        "| stream | method | seed | task | repeats task | subspace | decision | L_prev / L_curr "
+        "| own / L_curr | 1 + ε | own prunes |",
+        "|---|---|---:|---:|---:|---|---|---:|---:|---:|---|",
+    ]
+    for r, c in checks:
+        found = _num(c.l_prev / c.l_curr) if c.l_prev is not None and c.l_curr else ""
+        own = _num(c.own / c.l_curr) if c.own is not None and c.l_curr else ""
+        prunes = {None: "", True: "yes", False: "no"}[c.own_prunes]
+        lines.append(
+            f"| {r.stream} | {r.method} | {r.seed} | {c.task + 1} | {c.earlier + 1} | "
+            f"{c.subspace} | {c.decision} | {found} | {own} | {1 + c.eps:.2f} | {prunes} |"
+        )
+    kept = [c for _, c in checks if c.decision == "keep"]
+    saved = sum(bool(c.own_prunes) for c in kept)
+    lines += [
+        "",
+        f"Of {len(checks)} decisions on a repeated task, {len(kept)} kept a new anchor; the "
+        f"earlier task's own weights would have pruned {saved} of those {len(kept)}.",
+        "",
+        "Each row is one subspace's decision on a task that repeats an earlier one of its "
+        "stream (tasks numbered from 1). L_prev / L_curr: the best point the search found over "
+        "the previous anchors, against the grown subspace's best; the rule prunes when it is at "
+        "most 1 + ε. Own / L_curr: the weights the earlier task acts with, scored on the same "
+        "held-out batches (the same task gives the same batches and those weights mix only "
+        "frozen anchors, so they score what they scored when chosen: that task's L_curr, or its "
+        "L_prev if it pruned). Dirichlet(1) draws over many anchors rarely come near them; "
+        "`--search_stored_points true` races them too.\n",
     ]
     return "\n".join(lines)
 

@@ -16,15 +16,18 @@ from hispo_pl.benchmark.grid import grid_from_dict, load_grid
 from hispo_pl.benchmark.grid_report import Committed, grid_reports, write_grid_report
 from hispo_pl.benchmark.growth_curves import (
     Growth,
+    GrowthData,
     RunCurves,
     growth_data,
     memory_added,
     per_after_each_task,
+    repeat_checks,
     repeats_of,
 )
 from hispo_pl.benchmark.growth_report import (
     findings_markdown,
     growth_markdown,
+    repeats_markdown,
     search_time_markdown,
 )
 from hispo_pl.rundir import RunDir
@@ -237,3 +240,46 @@ def test_memory_after_each_task_of_a_fixed_stream(committed_runs, tmp_path):
         assert cells[4] == " → ".join(f"{m:.2f}" for m in ours["mem_per_task"])
         assert cells[5].split(" → ")[-1] == str(sum(ours["anchors"].values()))
     assert "| tiny | scn |" not in text  # its memory follows from its structure
+
+
+def _loss(task, decision, l_curr, l_prev=None, subspace="high", eps=0.1):
+    from hispo_pl.results import LossDecision
+
+    return LossDecision(task=task, subspace=subspace, decision=decision, eps=eps,
+                        l_curr=l_curr, l_prev=l_prev)  # fmt: skip
+
+
+def test_a_repeat_is_set_beside_the_loss_of_the_earlier_tasks_own_weights():
+    from hispo_pl.results import CriticDecision
+
+    stream = ["a", "b", "a", "c", "a"]
+    decisions = [
+        _loss(0, "first", 0.20),
+        _loss(0, "first", 0.90, subspace="low"),
+        _loss(1, "keep", 0.30, 0.60),
+        _loss(2, "prune", 0.25, 0.18),  # the first repeat pruned: it acts with L_prev's point
+        _loss(2, "keep", 0.50, 2.00, subspace="low", eps=0.6),
+        _loss(3, "keep", 0.30, 0.90),
+        _loss(4, "keep", 0.10, 0.40),  # kept, though task 2's point scores 0.18
+        CriticDecision(task=4, subspace="policy", decision="keep", eps=0.1, anchors=3),
+    ]
+    checks = repeat_checks(stream, decisions)
+    assert [(c.task, c.earlier, c.subspace, c.decision) for c in checks] == [
+        (2, 0, "high", "prune"),
+        (2, 0, "low", "keep"),
+        (4, 2, "high", "keep"),
+    ]
+    first, low, last = checks
+    assert (first.own, first.own_prunes) == (0.20, True)  # 0.20 <= 1.1 * 0.25
+    assert (low.own, low.own_prunes) == (0.90, False)  # 0.90 > 1.6 * 0.50
+    assert last.own == 0.18 and last.own_prunes is False  # the lowest of tasks 0 and 2
+    assert repeat_checks(["a", "b"], decisions[:3]) == []  # no repeat, nothing to check
+
+    grid = _grid(["hispo"])
+    run = RunCurves(STREAM, "hispo", 0, None, [1.0] * 5, None, repeat_checks=checks)
+    text = repeats_markdown(grid, GrowthData([run]))
+    assert f"| {STREAM} | hispo | 0 | 3 | 1 | high | prune | 0.72 | 0.80 | 1.10 | yes |" in text
+    assert f"| {STREAM} | hispo | 0 | 5 | 3 | high | keep | 4.00 | 1.80 | 1.10 | no |" in text
+    assert "Of 3 decisions on a repeated task, 2 kept a new anchor; the earlier task's own " in text
+    assert "would have pruned 0 of those 2." in text
+    assert "No committed run has decided" in repeats_markdown(grid, GrowthData([]))
