@@ -20,11 +20,13 @@ from ..metrics import memory_ratio, module_bytes
 def module_for(configs: Sequence[str | Path], *overrides: str):
     """The method module ``hispo-pl fit --config ...`` would train, sized by the stream's data
     (parsed and instantiated, nothing trained or read beyond the configs)."""
+    from ..console import lightning_notices_held
     from ..fit import run_lightning_cli
 
     args = [a for config in configs for a in ("--config", str(config))]
     args += ["--trainer.logger", "false", *overrides]
-    return run_lightning_cli(args, run=False).model
+    with lightning_notices_held():  # a report's output, not a run's: no accelerator lines, tips
+        return run_lightning_cli(args, run=False).model
 
 
 def structural_memory(module, n_tasks: int) -> list[float]:

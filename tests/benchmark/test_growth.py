@@ -34,3 +34,14 @@ def test_a_method_that_grows_by_its_decisions_is_refused():
     configs = [ROOT / "configs/streams/pointmaze-1.yaml", ROOT / "configs/methods/hispo.yaml"]
     with pytest.raises(TypeError, match="grows by its decisions"):
         structural_memory(module_for(configs), 3)
+
+
+def test_growing_a_structure_prints_none_of_lightnings_notices(capfd, caplog):
+    """A report grows SCN's memory between runs: Lightning's accelerator lines and tips would
+    land in the middle of the command's output."""
+    configs = [ROOT / "configs/streams/pointmaze-1.yaml", ROOT / "configs/methods/scn.yaml"]
+    with caplog.at_level("INFO"):
+        module_for(configs)
+    said = capfd.readouterr()
+    shown = said.out + said.err + caplog.text
+    assert "GPU available" not in shown and "Tip" not in shown, shown
