@@ -8,8 +8,9 @@ mean here. A verdict is ``holds``, ``does not hold`` or, where a claim's runs ar
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
+from pathlib import Path
 
 import numpy as np
 
@@ -143,10 +144,15 @@ def judged(stats: Mapping[str, Stats], ok: bool, what: Sequence[str] = ("per",))
         >>> judged({"hispo": one}, True)
         'provisionally holds (1 seed of 3)'
     """
-    fewest = min(s.seeds_of(what) for s in stats.values())
-    if fewest >= MIN_SEEDS:
+    return provisional(ok, min(s.seeds_of(what) for s in stats.values()))
+
+
+def provisional(ok: bool, seeds: int) -> str:
+    """The verdict ``ok`` gives, marked provisional where it rests on fewer than
+    :data:`MIN_SEEDS` seeds (``seeds``: the fewest a method has behind it)."""
+    if seeds >= MIN_SEEDS:
         return verdict(ok)
-    return f"provisionally {verdict(ok)} ({fewest} seed{'s' * (fewest > 1)} of {MIN_SEEDS})"
+    return f"provisionally {verdict(ok)} ({seeds} seed{'s' * (seeds > 1)} of {MIN_SEEDS})"
 
 
 def seeds_text(stats: Mapping[str, Stats], what: Sequence[str] = ("per",)) -> str:
@@ -376,3 +382,55 @@ def pac_transfers(committed: Committed):
     stats = {m: method_stats(committed, have, m) for m in methods}
     ok = not below(stats["hispo-pac"], stats["hispo"])
     return _figures(stats), judged(stats, ok)
+
+
+RANDOM_STREAMS = "random-streams"  # the grid of long random streams, committed in this folder
+
+
+def slows(first_half: float, last_half: float) -> bool:
+    """Growth that slows over a finite stream, what sublinear growth looks like there: less
+    MEM per task over the stream's last half than over its first.
+
+    Example:
+        >>> slows(0.67, 0.56), slows(0.45, 0.49)
+        (True, False)
+    """
+    return last_half < first_half
+
+
+def random_growth(committed: Committed):
+    """HiSPO's memory on the random AntMaze streams of the ``random-streams`` grid (committed in
+    that folder of the protocol's root) grows sublinearly, and PNN's, grown from its structure,
+    faster: HiSPO's mean MEM curve over the streams it ran :func:`slows`, and PNN adds more per
+    task than HiSPO over the last half."""
+    key = ("claims", RANDOM_STREAMS)
+    if key not in committed.cache:
+        committed.cache[key] = _random_growth(Path(committed.root) / RANDOM_STREAMS)
+    return committed.cache[key]
+
+
+def _random_growth(root: Path):
+    from hispo_pl.benchmark.grid import load_grid
+    from hispo_pl.benchmark.growth_curves import Growth, growth_data
+    from hispo_pl.config_files import config_root
+
+    if not root.is_dir():
+        return None
+    whole = load_grid(RANDOM_STREAMS, config_root())
+    streams = whole.parts["antmaze"]
+    data = growth_data(replace(whole, streams=streams, methods=("hispo",)), Committed(root))
+    curves = [r.memory for r in data.runs if r.memory is not None]
+    if not curves or len({len(c) for c in curves}) > 1:
+        return None
+    hispo = Growth.of(np.mean(curves, axis=0))
+    pnn = Growth.of(data.structure[("antmaze", "pnn")])
+    ran = sorted({r.stream for r in data.runs})
+    seeds = min(sum(r.stream == s for r in data.runs) for s in ran)
+    text = (
+        f"hispo: MEM per task {hispo.first_half:.2f} over the first half, {hispo.last_half:.2f} "
+        f"over the last, {hispo.final:.2f} after {len(curves[0])} tasks; pnn (structure): "
+        f"{pnn.first_half:.2f}, {pnn.last_half:.2f}, {pnn.final:.2f} ({len(ran)} of "
+        f"{len(streams)} random AntMaze streams: {', '.join(ran)})"
+    )
+    ok = slows(hispo.first_half, hispo.last_half) and pnn.last_half > hispo.last_half
+    return text, provisional(ok, seeds)

@@ -4,8 +4,14 @@ give (tests/lab/test_docs.py checks the embed byte for byte)."""
 
 from __future__ import annotations
 
+import json
+import shutil
+from pathlib import Path
+
 import pytest
 
+from hispo_pl.benchmark.grid_report import Committed
+from hispo_pl.benchmark.growth_curves import Growth
 from lab import claim_rules as rules
 from lab import claims
 
@@ -26,8 +32,9 @@ def test_interval_rules():
 class _Empty:
     """Committed runs of a protocol with none of its streams run yet."""
 
-    def __init__(self):
+    def __init__(self, root=Path("no-runs-here")):
         self.cache = {}
+        self.root = root
 
     def measured(self, stream):
         return []
@@ -152,3 +159,33 @@ def test_a_streams_first_seed_does_not_draw_a_full_verdict_down_to_one_seed():
     assert rules.streams_run_by(runs, ["antmaze-1"], tuple(three)) == ["antmaze-1"]
     _, verdict = claim.test(_Runs({"pointmaze-2": {"hispo-pac": [0.5], "hispo": [0.99]}}))
     assert verdict == "provisionally does not hold (1 seed of 3)"
+
+
+RANDOM_ANTMAZE = (
+    Path(__file__).resolve().parents[2] / "docs/results/random-streams/random-antmaze-8@0"
+)
+
+
+def test_figure_2d_is_judged_on_the_committed_random_antmaze_runs(tmp_path):
+    """The growth claim reads HiSPO's MEM after each task from the random-streams runs under a
+    protocol's root: a committed run's own curve gives the figures and the verdict."""
+    stream = tmp_path / rules.RANDOM_STREAMS / RANDOM_ANTMAZE.name
+    shutil.copytree(RANDOM_ANTMAZE / "hispo", stream / "hispo")
+    shutil.copy(RANDOM_ANTMAZE / "benchmark.json", stream)
+    memory = json.loads((stream / "hispo/seed0/results.json").read_text())["mem_per_task"]
+    growth = Growth.of(memory)
+
+    figures, verdict = rules.random_growth(Committed(tmp_path))
+
+    assert figures.startswith(
+        f"hispo: MEM per task {growth.first_half:.2f} over the first half, "
+        f"{growth.last_half:.2f} over the last, {growth.final:.2f} after {len(memory)} tasks"
+    )
+    assert f"(1 of 2 random AntMaze streams: {RANDOM_ANTMAZE.name})" in figures
+    slowed = rules.slows(growth.first_half, growth.last_half)
+    assert verdict == f"provisionally {rules.verdict(slowed)} (1 seed of 3)"
+    assert rules.random_growth(_Empty(tmp_path / "elsewhere")) is None
+
+
+def test_growth_slows_when_the_last_half_adds_less_per_task():
+    assert rules.slows(1.0, 0.5) and not rules.slows(0.5, 0.5) and not rules.slows(0.45, 0.49)
