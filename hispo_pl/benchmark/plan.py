@@ -58,7 +58,10 @@ def parse_seeds(spec: str) -> list[int]:
         raise ValueError(f"--seeds takes a count (3) or a comma list (0,4), got {spec!r}") from None
     if "," not in spec:
         if len(values) != 1 or values[0] < 1:
-            raise ValueError(f"--seeds as a count must be >= 1, got {spec!r}")
+            raise ValueError(
+                f"--seeds as a count must be >= 1, got {spec!r} (seed 0 alone: --seeds 1, "
+                "or a list such as 0,)"
+            )
         return list(range(values[0]))
     if not values or min(values) < 0 or len(set(values)) != len(values):
         raise ValueError(f"--seeds as a list needs distinct non-negative seeds, got {spec!r}")

@@ -196,7 +196,7 @@ def test_a_benchmark_flag_to_fix_is_one_line(tmp_path, capsys):
     assert lab_main(["benchmark", *args, "--seeds", "0", "--dry-run"]) == 2
     err = capsys.readouterr().err.strip()
     assert err == "python -m lab benchmark: --seeds as a count must be >= 1, got '0' " + (
-        "(hispo-pl benchmark --help)"
+        "(seed 0 alone: --seeds 1, or a list such as 0,) (hispo-pl benchmark --help)"
     )
 
 
