@@ -411,7 +411,7 @@ def random_growth(committed: Committed):
 
 def _random_growth(root: Path):
     from hispo_pl.benchmark.grid import load_grid
-    from hispo_pl.benchmark.growth_curves import Growth, growth_data
+    from hispo_pl.benchmark.growth_curves import Growth, growth_data, memory_added
     from hispo_pl.config_files import config_root
 
     if not root.is_dir():
@@ -426,11 +426,17 @@ def _random_growth(root: Path):
     pnn = Growth.of(data.structure[("antmaze", "pnn")])
     ran = sorted({r.stream for r in data.runs})
     seeds = min(sum(r.stream == s for r in data.runs) for s in ran)
+    added = memory_added(data.runs)
+    split = " and ".join(
+        f"{added[repeat][0]:.2f} per {name} ({added[repeat][1]})"
+        for repeat, name in ((False, "new task after the first"), (True, "repeat"))
+        if repeat in added
+    )
     text = (
         f"hispo: MEM per task {hispo.first_half:.2f} over the first half, {hispo.last_half:.2f} "
-        f"over the last, {hispo.final:.2f} after {len(curves[0])} tasks; pnn (structure): "
-        f"{pnn.first_half:.2f}, {pnn.last_half:.2f}, {pnn.final:.2f} ({len(ran)} of "
-        f"{len(streams)} random AntMaze streams: {', '.join(ran)})"
+        f"over the last, {hispo.final:.2f} after {len(curves[0])} tasks ({split}); "
+        f"pnn (structure): {pnn.first_half:.2f}, {pnn.last_half:.2f}, {pnn.final:.2f} "
+        f"({len(ran)} of {len(streams)} random AntMaze streams: {', '.join(ran)})"
     )
     ok = slows(hispo.first_half, hispo.last_half) and pnn.last_half > hispo.last_half
     return text, provisional(ok, seeds)

@@ -8,10 +8,11 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from hispo_pl.benchmark.grid_report import Committed
-from hispo_pl.benchmark.growth_curves import Growth
+from hispo_pl.benchmark.growth_curves import Growth, repeats_of
 from lab import claim_rules as rules
 from lab import claims
 
@@ -172,8 +173,10 @@ def test_figure_2d_is_judged_on_the_committed_random_antmaze_runs(tmp_path):
     stream = tmp_path / rules.RANDOM_STREAMS / RANDOM_ANTMAZE.name
     shutil.copytree(RANDOM_ANTMAZE / "hispo", stream / "hispo")
     shutil.copy(RANDOM_ANTMAZE / "benchmark.json", stream)
-    memory = json.loads((stream / "hispo/seed0/results.json").read_text())["mem_per_task"]
-    growth = Growth.of(memory)
+    results = json.loads((stream / "hispo/seed0/results.json").read_text())
+    memory, growth = results["mem_per_task"], Growth.of(results["mem_per_task"])
+    again = repeats_of(results["stream"])
+    on_repeats = [memory[k] - memory[k - 1] for k in range(1, len(memory)) if again[k]]
 
     figures, verdict = rules.random_growth(Committed(tmp_path))
 
@@ -181,6 +184,7 @@ def test_figure_2d_is_judged_on_the_committed_random_antmaze_runs(tmp_path):
         f"hispo: MEM per task {growth.first_half:.2f} over the first half, "
         f"{growth.last_half:.2f} over the last, {growth.final:.2f} after {len(memory)} tasks"
     )
+    assert f"{np.mean(on_repeats):.2f} per repeat ({len(on_repeats)}))" in figures
     assert f"(1 of 2 random AntMaze streams: {RANDOM_ANTMAZE.name})" in figures
     slowed = rules.slows(growth.first_half, growth.last_half)
     assert verdict == f"provisionally {rules.verdict(slowed)} (1 seed of 3)"
