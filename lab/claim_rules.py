@@ -387,31 +387,26 @@ def pac_transfers(committed: Committed):
 RANDOM_STREAMS = "random-streams"  # the grid of long random streams, committed in this folder
 
 
-def slows(first_half: float, last_half: float) -> bool:
-    """Growth that slows over a finite stream, what sublinear growth looks like there: less
-    MEM per task over the stream's last half than over its first.
-
-    Example:
-        >>> slows(0.67, 0.56), slows(0.45, 0.49)
-        (True, False)
-    """
-    return last_half < first_half
-
-
 def random_growth(committed: Committed):
     """HiSPO's memory on the random AntMaze streams of the ``random-streams`` grid (committed in
     that folder of the protocol's root) grows sublinearly, and PNN's, grown from its structure,
-    faster: HiSPO's mean MEM curve over the streams it ran :func:`slows`, and PNN adds more per
-    task than HiSPO over the last half."""
+    faster: HiSPO's mean MEM curve over the streams it ran slows
+    (:attr:`~hispo_pl.benchmark.growth_curves.Growth.slows`), and PNN adds more per task than
+    HiSPO over the last half."""
     key = ("claims", RANDOM_STREAMS)
     if key not in committed.cache:
-        committed.cache[key] = _random_growth(Path(committed.root) / RANDOM_STREAMS)
+        committed.cache[key] = _random_growth(committed.root / RANDOM_STREAMS)
     return committed.cache[key]
 
 
 def _random_growth(root: Path):
     from hispo_pl.benchmark.grid import load_grid
-    from hispo_pl.benchmark.growth_curves import Growth, growth_data, memory_added
+    from hispo_pl.benchmark.growth_curves import (
+        Growth,
+        growth_data,
+        mean_curve,
+        memory_added_text,
+    )
     from hispo_pl.config_files import config_root
 
     if not root.is_dir():
@@ -420,23 +415,19 @@ def _random_growth(root: Path):
     streams = whole.parts["antmaze"]
     data = growth_data(replace(whole, streams=streams, methods=("hispo",)), Committed(root))
     curves = [r.memory for r in data.runs if r.memory is not None]
-    if not curves or len({len(c) for c in curves}) > 1:
+    if not curves:
         return None
-    hispo = Growth.of(np.mean(curves, axis=0))
+    mean = mean_curve(curves)
+    hispo = Growth.of(mean)
     pnn = Growth.of(data.structure[("antmaze", "pnn")])
     ran = sorted({r.stream for r in data.runs})
     seeds = min(sum(r.stream == s for r in data.runs) for s in ran)
-    added = memory_added(data.runs)
-    split = " and ".join(
-        f"{added[repeat][0]:.2f} per {name} ({added[repeat][1]})"
-        for repeat, name in ((False, "new task after the first"), (True, "repeat"))
-        if repeat in added
-    )
     text = (
         f"hispo: MEM per task {hispo.first_half:.2f} over the first half, {hispo.last_half:.2f} "
-        f"over the last, {hispo.final:.2f} after {len(curves[0])} tasks ({split}); "
+        f"over the last, {hispo.final:.2f} after {len(mean)} tasks "
+        f"({memory_added_text(data.runs)}); "
         f"pnn (structure): {pnn.first_half:.2f}, {pnn.last_half:.2f}, {pnn.final:.2f} "
         f"({len(ran)} of {len(streams)} random AntMaze streams: {', '.join(ran)})"
     )
-    ok = slows(hispo.first_half, hispo.last_half) and pnn.last_half > hispo.last_half
+    ok = hispo.slows and pnn.last_half > hispo.last_half
     return text, provisional(ok, seeds)

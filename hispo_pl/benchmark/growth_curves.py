@@ -84,6 +84,23 @@ def memory_added(runs: Sequence[RunCurves]) -> dict[bool, tuple[float, int]]:
     return {kind: (float(np.mean(v)), len(v)) for kind, v in added.items() if v}
 
 
+def memory_added_text(runs: Sequence[RunCurves]) -> str:
+    """:func:`memory_added` in words ("" when no run measured its MEM after each task).
+
+    Example:
+        >>> run = RunCurves("s", "m", 0, [1.0, 2.0, 2.0], [1.0] * 3, None,
+        ...                 repeats=[False, False, True])
+        >>> memory_added_text([run])
+        '1.00 per new task after the first (1) and 0.00 per repeat (1)'
+    """
+    added = memory_added(runs)
+    return " and ".join(
+        f"{added[repeat][0]:.2f} per {name} ({added[repeat][1]})"
+        for repeat, name in ((False, "new task after the first"), (True, "repeat"))
+        if repeat in added
+    )
+
+
 @dataclass(frozen=True)
 class RepeatCheck:
     """A subspace's decision on a task that repeats an earlier one, beside the loss the
@@ -210,6 +227,14 @@ class Growth:
     slope: float | None
     final: float
 
+    @property
+    def slows(self) -> bool:
+        """Growth that slows over a finite stream, what sublinear growth looks like there:
+        less per task over the last half than over the first (False where a half is undefined).
+        """
+        halves = (self.first_half, self.last_half)
+        return None not in halves and self.last_half < self.first_half
+
     @classmethod
     def of(cls, values: Sequence[float]) -> Growth:
         """Example:
@@ -322,6 +347,7 @@ def _family_title(family: str, streams: Sequence[str]) -> str:
     return f"{family} ({len(streams)} stream{'s' * (len(streams) > 1)} of {tasks} tasks)"
 
 
-def _mean_curve(curves: Sequence[Sequence[float]]) -> list[float]:
+def mean_curve(curves: Sequence[Sequence[float]]) -> list[float]:
+    """The mean over runs of curves after each task, as long as the shortest."""
     n = min(len(c) for c in curves)
     return [float(v) for v in np.mean([list(c)[:n] for c in curves], axis=0)]

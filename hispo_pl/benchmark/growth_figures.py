@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .growth_curves import STRUCTURAL, GrowthData, _family_title, _mean_curve
+from .growth_curves import STRUCTURAL, GrowthData, _family_title, mean_curve
 
 FIGURES = ("memory_growth.png", "per_after_task.png")
 
@@ -46,7 +46,7 @@ def _draw(
             lw=0.8,
             alpha=0.35,
         )
-    mean = np.multiply(_mean_curve(x_runs), scale)
+    mean = np.multiply(mean_curve(x_runs), scale)
     ax.plot(
         range(1, len(mean) + 1),
         mean,

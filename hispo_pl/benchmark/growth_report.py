@@ -28,10 +28,10 @@ from .growth_curves import (
     GrowthData,
     RunCurves,
     _family_title,
-    _mean_curve,
     anchors_after_each_task,
     has_random_streams,
-    memory_added,
+    mean_curve,
+    memory_added_text,
 )
 
 # --- the report's text --------------------------------------------------------------------------
@@ -47,11 +47,11 @@ def _row(method: str, stream: str, seeds: str, runs: Sequence[RunCurves]) -> str
     per = float(np.mean([r.per[-1] for r in runs])) * 100
     cells = ["", "", ""]
     if anchors:
-        anc = Growth.of(_mean_curve(anchors))
+        anc = Growth.of(mean_curve(anchors))
         cells = [_num(anc.first_half), _num(anc.last_half), f"{anc.final:.0f}"]
     cells += ["", "", "", ""]
     if memory:
-        mem = Growth.of(_mean_curve(memory))
+        mem = Growth.of(mean_curve(memory))
         cells[3:] = [_num(v) for v in (mem.first_half, mem.last_half, mem.slope, mem.final)]
     cells.append(f"{per:.1f}")
     return f"| {method} | {stream} | {seeds} | " + " | ".join(cells) + " |"
@@ -157,23 +157,18 @@ def _sentence(method: str, family: str, data: GrowthData) -> str | None:
     text = f"{method} ({len(runs)} run{'s' * (len(runs) > 1)})"
     if method in STRUCTURAL or not memory:
         return f"{text}: PER after the last task {per:.1f}."
-    mem = Growth.of(_mean_curve(memory))
+    mem = Growth.of(mean_curve(memory))
     if mem.first_half is None or mem.last_half is None:
         shape = f"ends at MEM {mem.final:.2f}"
     else:
-        slowing = "slowing" if mem.last_half < mem.first_half else "not slowing"
+        slowing = "slowing" if mem.slows else "not slowing"
         shape = (
             f"adds {mem.last_half:.2f} MEM per task over the last half of a stream against "
             f"{mem.first_half:.2f} over the first ({slowing}) and ends at {mem.final:.2f}"
         )
-    added = memory_added(runs)
-    kinds = [
-        f"{added[repeat][0]:.2f} per {name} ({added[repeat][1]})"
-        for repeat, name in ((False, "new task after the first"), (True, "repeat"))
-        if repeat in added
-    ]
-    if kinds:
-        shape += ": " + " and ".join(kinds)
+    added = memory_added_text(runs)
+    if added:
+        shape += ": " + added
     return f"{text} {shape}; PER after the last task {per:.1f}."
 
 
@@ -324,8 +319,8 @@ def memory_per_task_markdown(grid, committed) -> str:
             mems = [m for m in mems if m and None not in m and len(m) == n]
             anchors = [anchors_after_each_task(r.decisions, n) for r in runs]
             anchors = [a for a in anchors if a is not None]
-            mem = " → ".join(f"{v:.2f}" for v in _mean_curve(mems)) if mems else "not measured"
-            held = " → ".join(f"{round(v, 2):g}" for v in _mean_curve(anchors)) if anchors else ""
+            mem = " → ".join(f"{v:.2f}" for v in mean_curve(mems)) if mems else "not measured"
+            held = " → ".join(f"{round(v, 2):g}" for v in mean_curve(anchors)) if anchors else ""
             lines.append(f"| {stream} | {method} | {len(runs)} | {len(mems)} | {mem} | {held} |")
     if not lines:
         return ""

@@ -77,6 +77,14 @@ def test_growth_halves_and_per_after_each_task():
     assert per_after_each_task([[0.5, None], [1.0, 0.0]]) == [0.5, 0.5]
 
 
+def test_growth_slows_when_the_last_half_adds_less_per_task():
+    def halves(first: float, last: float) -> Growth:
+        return Growth(first, last, None, 0.0)
+
+    assert halves(1.0, 0.5).slows and not halves(0.5, 0.5).slows
+    assert not halves(0.45, 0.49).slows and not Growth.of([2.0]).slows
+
+
 def test_memory_added_on_repeats_is_told_from_that_on_new_tasks():
     """A random stream draws with replacement: MEM that grows on new tasks only slows down as
     repeats come, so what a task adds is pooled apart for the two kinds."""
