@@ -171,6 +171,46 @@ def export_runs(out: Path, dest: Path) -> list[Path]:
     return written
 
 
+def other_episodes(records: Sequence[RunRecord]) -> list[str]:
+    """Where runs of one stream read the same dataset but recorded other episodes: for each
+    dataset whose digests (``datasets[i].digest`` of ``results.json``) differ between runs, a
+    line naming the tasks that read it and the runs behind each digest. A dataset made again on
+    another machine can hold other episodes, and a table comparing such runs compares methods
+    on different data. Runs that recorded no digest are not compared.
+
+    Example:
+        >>> def run(method, digest):
+        ...     used = [{"dataset": "hispo/antmaze-large-expert-v0", "episodes": 500} | digest]
+        ...     results = StreamResults(stream=["antmaze-large-PO"], R=[[1.0]], datasets=used)
+        ...     return RunRecord(method, 0, results)
+        >>> other_episodes([run("hispo", {"digest": "a52c"}), run("scn", {"digest": "6c4b"})])
+        ['hispo/antmaze-large-expert-v0 (task 1): a52c for hispo seed 0; 6c4b for scn seed 0']
+        >>> other_episodes([run("hispo", {"digest": "a52c"}), run("scn", {})])
+        []
+    """
+    tasks: dict[str, set[int]] = {}
+    runs: dict[str, dict[str, set[str]]] = {}
+    for r in records:
+        for task, used in enumerate(r.results.datasets or (), start=1):
+            if not isinstance(used, dict) or not used.get("digest") or not used.get("dataset"):
+                continue
+            tasks.setdefault(used["dataset"], set()).add(task)
+            by_digest = runs.setdefault(used["dataset"], {})
+            by_digest.setdefault(used["digest"], set()).add(f"{r.method} seed {r.seed}")
+    lines = []
+    for dataset, by_digest in sorted(runs.items()):
+        if len(by_digest) < 2:
+            continue
+        numbers = sorted(tasks[dataset])
+        where = f"task{'s' if len(numbers) > 1 else ''} {', '.join(map(str, numbers))}"
+        whose = "; ".join(
+            f"{digest} for {', '.join(sorted(names))}"
+            for digest, names in sorted(by_digest.items(), key=lambda kv: sorted(kv[1]))
+        )
+        lines.append(f"{dataset} ({where}): {whose}")
+    return lines
+
+
 def scratch_method_for(method: str, available: Iterable[str]) -> str | None:
     """The from-scratch run whose R diagonal is ``method``'s FWT reference: ``scn``, else
     ``sc1``; for flat-BC methods (``bc-*``) ``bc-scn``, else ``bc-sc1``; None if none ran."""

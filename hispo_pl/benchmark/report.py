@@ -11,7 +11,7 @@ import numpy as np
 from ..errors import RunDirError
 from ..io import atomic_write_text, write_figure
 from ..rundir import RunDir
-from .finished_runs import MethodRow, RunRecord, aggregate, load_records
+from .finished_runs import MethodRow, RunRecord, aggregate, load_records, other_episodes
 from .markdown import cell
 from .plan import RUNS_DIR, planned_stream
 from .tables import (
@@ -103,6 +103,23 @@ def unfinished_markdown(runs: Sequence[tuple[str, int, str]], unreadable: Sequen
     return "\n".join(lines) + "\n" if lines else ""
 
 
+def other_episodes_markdown(records: Sequence[RunRecord]) -> str:
+    """The table.md section naming runs that trained on other episodes of the same dataset
+    (:func:`~.finished_runs.other_episodes`), so a table never compares methods on different
+    data unsaid."""
+    lines = other_episodes(records)
+    if not lines:
+        return ""
+    intro = (
+        "These runs read the same dataset for a task but recorded other episodes (the digest "
+        "of each task's episodes, `datasets` in `results.json`): the dataset was made again, on "
+        "a machine or at versions that collect other episodes (docs/data.md). Their "
+        "rows compare methods on different data."
+    )
+    items = "\n".join(f"- {cell(line)}" for line in lines)
+    return f"\n## Runs that trained on other episodes\n\n{intro}\n\n{items}\n"
+
+
 def write_report(out: Path, stream: str | None = None, figures: bool = True) -> list[Path]:
     """Rebuild ``table.md``, ``table.csv``, ``runtime.csv``, ``perf_vs_memory.png``, the
     success heatmaps and, where runs made decisions, ``decisions.md`` (loss rules) and
@@ -129,7 +146,9 @@ def write_report(out: Path, stream: str | None = None, figures: bool = True) -> 
     for name, text in (
         (
             "table.md",
-            table_markdown(rows, notes, stream) + unfinished_markdown(missing, unreadable),
+            table_markdown(rows, notes, stream)
+            + other_episodes_markdown(records)
+            + unfinished_markdown(missing, unreadable),
         ),
         ("table.csv", table_csv(rows)),
         ("runtime.csv", runtime_csv(records)),

@@ -16,6 +16,21 @@ import numpy as np
 from ..errors import UserError
 from .mazes import bfs_next_cell, cell_to_xy, maze_array, xy_to_cell
 
+# An expert's arithmetic must give the same bits on every processor, or a dataset made again on
+# another machine holds other episodes (the ant's small differences grow into other paths).
+# BLAS does not: the kernel OpenBLAS picks for the processor sums a matrix product in its own
+# order. Elementwise products and numpy's own sums over a row do, so the experts use them.
+
+
+def _dense(weight: np.ndarray, bias: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``weight @ x + bias``, summed in numpy's order rather than the BLAS kernel's."""
+    return (weight * x).sum(axis=1) + bias
+
+
+def _length(v: np.ndarray) -> float:
+    """``np.linalg.norm(v)`` without BLAS (which computes it as a dot product)."""
+    return float(np.sqrt((v * v).sum()))
+
 
 class WaypointPlanner:
     """Waypoints toward a goal: the centres of the cells on a BFS shortest path, then the goal
@@ -57,7 +72,7 @@ class WaypointPlanner:
         ):
             self._target = tuple(int(v) for v in nxt[cell])  # (re)plan from the current cell
         centre = cell_to_xy(self.env, np.array(self._target))
-        if np.linalg.norm(centre - pos) < self.switch_radius:
+        if _length(centre - pos) < self.switch_radius:
             if self._target == goal_cell:
                 return goal
             self._target = tuple(int(v) for v in nxt[self._target])
@@ -154,9 +169,9 @@ class AntGoalPolicy:
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         w = self.w
-        h = np.maximum(w["fc0_weight"] @ x + w["fc0_bias"], 0.0)
-        h = np.maximum(w["fc1_weight"] @ h + w["fc1_bias"], 0.0)
-        return np.tanh(w["last_fc_weight"] @ h + w["last_fc_bias"])
+        h = np.maximum(_dense(w["fc0_weight"], w["fc0_bias"], x), 0.0)
+        h = np.maximum(_dense(w["fc1_weight"], w["fc1_bias"], h), 0.0)
+        return np.tanh(_dense(w["last_fc_weight"], w["last_fc_bias"], h))
 
 
 class AntMazeExpert:
@@ -178,7 +193,7 @@ class AntMazeExpert:
     def policy_input(self, obs: dict) -> np.ndarray:
         pos = obs["achieved_goal"]
         direction = self.planner.waypoint(pos, obs["desired_goal"]) - pos
-        norm = np.linalg.norm(direction)
+        norm = _length(direction)
         if norm > 1e-8:
             direction = direction * (self.direction_scale / norm)
         return np.concatenate([obs["observation"], direction])

@@ -287,6 +287,42 @@ def test_write_report_from_disk_and_report_only(tmp_path, capsys):
     assert "no finished runs" in capsys.readouterr().err
 
 
+def test_the_table_names_runs_that_trained_on_other_episodes(tmp_path, capsys):
+    """A dataset made again on another machine can hold other episodes: the table says which
+    runs read which, so methods are never compared on different data unsaid."""
+
+    def read(*digests):
+        return [{"dataset": f"hispo/{n}-expert-v0", "episodes": 9, "digest": d} for n, d in digests]
+
+    same = read(("umaze", "u1"), ("umaze", "u1"))
+    runs = {
+        ("hispo", 0): same,
+        ("scn", 0): same,
+        ("scn", 1): read(("umaze", "u2"), ("umaze", "u2")),  # the dataset made again
+        ("hispo", 1): [{"dataset": "hispo/umaze-expert-v0", "episodes": 9}] * 2,  # no digest
+    }
+    for (method, seed), datasets in runs.items():
+        results = _results([0.5, 0.9], [0.5, 0.9])
+        results.datasets = datasets
+        run_dir = tmp_path / "runs" / method / f"seed{seed}"
+        run_dir.mkdir(parents=True)
+        RunDir(run_dir).write_results(results)
+    assert cli_main(["benchmark", "--out", str(tmp_path), "--report-only"]) == 0
+    capsys.readouterr()
+    table = (tmp_path / "table.md").read_text()
+    assert "## Runs that trained on other episodes" in table
+    assert (
+        "- hispo/umaze-expert-v0 (tasks 1, 2): u1 for hispo seed 0, scn seed 0; u2 for scn seed 1"
+        in table
+    )
+    for run_dir in (tmp_path / "runs").glob("*/seed*"):  # every run on the same episodes
+        results = RunDir(run_dir).stream_results()
+        results.datasets = same
+        RunDir(run_dir).write_results(results)
+    assert cli_main(["benchmark", "--out", str(tmp_path), "--report-only"]) == 0
+    assert "other episodes" not in (tmp_path / "table.md").read_text()
+
+
 def test_export_copies_small_files_and_the_report_rebuilds_with_decisions(tmp_path, capsys):
     decisions = [
         {

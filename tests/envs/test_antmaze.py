@@ -3,6 +3,10 @@ and collection cutting an episode at a flip. Nothing here needs the expert's wei
 
 from __future__ import annotations
 
+import os
+import platform
+import subprocess
+import sys
 from types import SimpleNamespace
 
 import mujoco
@@ -112,6 +116,41 @@ def test_missing_weights_say_where_to_get_them(tmp_path, monkeypatch):
     path = tmp_path / "weights.npz"
     np.savez(path, **_fake_weights())
     assert ant_expert_weights_path(path) == path.resolve()
+
+
+# collect two ant episodes with the given weights and print the digest of what was stored
+_COLLECT_AND_DIGEST = """
+import sys
+from hispo_pl.cli import main
+from hispo_pl.data.datasets import load_episodes
+generate = ["data", "generate", "antmaze-umaze", "--episodes", "2"]
+assert main([*generate, "--expert-weights", sys.argv[1]]) == 0
+print(load_episodes("antmaze-umaze-N[2]").content_digest())
+"""
+
+
+@pytest.mark.skipif(platform.machine() != "x86_64", reason="OpenBLAS's kernel names are x86-64's")
+def test_ant_collection_does_not_depend_on_the_processors_blas_kernel(tmp_path):
+    """A dataset made again on another machine holds the same episodes only if the expert's
+    actions do not depend on the matrix kernel OpenBLAS picks for the processor. Prescott's
+    (SSE3, which every x86-64 runs) against the one picked for this processor."""
+    weights = tmp_path / "weights.npz"
+    np.savez(weights, **_fake_weights())
+    digests = {}
+    for kernel in ("picked", "Prescott"):
+        env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_CORETYPE"}
+        env["MINARI_DATASETS_PATH"] = str(tmp_path / f"minari-{kernel}")
+        if kernel != "picked":
+            env["OPENBLAS_CORETYPE"] = kernel
+        done = subprocess.run(
+            [sys.executable, "-c", _COLLECT_AND_DIGEST, str(weights)],
+            env=env,
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        digests[kernel] = done.stdout.split()[-1]
+    assert digests["picked"] == digests["Prescott"]
 
 
 def test_generate_without_weights_fails_with_the_message(tmp_path, monkeypatch, capsys):
