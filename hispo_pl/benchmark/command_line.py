@@ -13,7 +13,7 @@ from ..config_files import config_root
 from ..errors import Interrupted, RunDirError
 from ..io import atomic_write_text, make_folder
 from . import plan
-from .configs import datasets_needed, prepare_datasets
+from .configs import configured_value, datasets_needed, prepare_datasets, warn_of_other_episodes
 from .finished_runs import export_runs, refuse_foreign_export
 from .launch import Reporter, run_env, run_local, run_ray
 from .parser import build_parser, cpu_count
@@ -235,6 +235,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         for name, episodes in datasets_needed(run.configs, run.argv).items():
             needed[name] = max(needed.get(name, 0), episodes)
     prepare_datasets(needed)
+    if todo:
+        spec = configured_value(todo[0].configs, todo[0].argv, "data.stream")
+        kept = [out, *([Path(args.export)] if args.export else [])]
+        warn_of_other_episodes(stream_name, spec, kept)
     reporter = Reporter(total=len(runs), done=len(runs) - len(todo))
     env = run_env(args.num_threads)
     try:

@@ -171,12 +171,35 @@ def export_runs(out: Path, dest: Path) -> list[Path]:
     return written
 
 
+DatasetRead = tuple[str, int]
+"""A dataset as a run read it: its Minari id and how many of its episodes."""
+
+
+def episodes_read(records: Sequence[RunRecord]) -> dict[DatasetRead, dict[str, set[str]]]:
+    """Which episodes each run read: for every dataset (and episode count) the runs read, the
+    digests their ``results.json`` records (``datasets[i].digest``), each with the runs (``hispo
+    seed 0``) that read those episodes. Runs that recorded no digest are left out."""
+    found: dict[DatasetRead, dict[str, set[str]]] = {}
+    for r in records:
+        for used in r.results.datasets or ():
+            if not isinstance(used, dict) or not used.get("digest") or not used.get("dataset"):
+                continue
+            by_digest = found.setdefault((used["dataset"], int(used.get("episodes") or 0)), {})
+            by_digest.setdefault(used["digest"], set()).add(f"{r.method} seed {r.seed}")
+    return found
+
+
+def _who(by_digest: dict[str, set[str]]) -> str:
+    """``a52c for cspo seed 0, hispo seed 0; 6c4b for scn seed 0``."""
+    ordered = sorted(by_digest.items(), key=lambda kv: sorted(kv[1]))
+    return "; ".join(f"{digest} for {', '.join(sorted(names))}" for digest, names in ordered)
+
+
 def other_episodes(records: Sequence[RunRecord]) -> list[str]:
     """Where runs of one stream read the same dataset but recorded other episodes: for each
-    dataset whose digests (``datasets[i].digest`` of ``results.json``) differ between runs, a
-    line naming the tasks that read it and the runs behind each digest. A dataset made again on
-    another machine can hold other episodes, and a table comparing such runs compares methods
-    on different data. Runs that recorded no digest are not compared.
+    dataset whose digests differ between runs (:func:`episodes_read`), a line naming the runs
+    behind each digest. A dataset made again on another machine can hold other episodes, and a
+    table comparing such runs compares methods on different data.
 
     Example:
         >>> def run(method, digest):
@@ -184,30 +207,37 @@ def other_episodes(records: Sequence[RunRecord]) -> list[str]:
         ...     results = StreamResults(stream=["antmaze-large-PO"], R=[[1.0]], datasets=used)
         ...     return RunRecord(method, 0, results)
         >>> other_episodes([run("hispo", {"digest": "a52c"}), run("scn", {"digest": "6c4b"})])
-        ['hispo/antmaze-large-expert-v0 (task 1): a52c for hispo seed 0; 6c4b for scn seed 0']
+        ['hispo/antmaze-large-expert-v0 (500 episodes): a52c for hispo seed 0; 6c4b for scn seed 0']
         >>> other_episodes([run("hispo", {"digest": "a52c"}), run("scn", {})])
         []
     """
-    tasks: dict[str, set[int]] = {}
-    runs: dict[str, dict[str, set[str]]] = {}
-    for r in records:
-        for task, used in enumerate(r.results.datasets or (), start=1):
-            if not isinstance(used, dict) or not used.get("digest") or not used.get("dataset"):
-                continue
-            tasks.setdefault(used["dataset"], set()).add(task)
-            by_digest = runs.setdefault(used["dataset"], {})
-            by_digest.setdefault(used["digest"], set()).add(f"{r.method} seed {r.seed}")
+    return [
+        f"{dataset} ({episodes} episodes): {_who(by_digest)}"
+        for (dataset, episodes), by_digest in sorted(episodes_read(records).items())
+        if len(by_digest) > 1
+    ]
+
+
+def unlike_here(records: Sequence[RunRecord], here: dict[DatasetRead, str]) -> list[str]:
+    """The datasets that hold other episodes on this machine (``here``: each dataset's digest,
+    as a run would record it) than ``records`` read: a line for each, naming both digests and
+    the runs that read the other one. Runs trained now would train on other data than them.
+
+    Example:
+        >>> used = [{"dataset": "hispo/antmaze-large-expert-v0", "episodes": 500, "digest": "a52c"}]
+        >>> hispo = RunRecord("hispo", 0, StreamResults(stream=["a"], R=[[1.0]], datasets=used))
+        >>> unlike_here([hispo], {("hispo/antmaze-large-expert-v0", 500): "6c4b"})
+        ['hispo/antmaze-large-expert-v0 (500 episodes) holds 6c4b here; read a52c for hispo seed 0']
+        >>> unlike_here([hispo], {("hispo/antmaze-large-expert-v0", 500): "a52c"})
+        []
+    """
+    read = episodes_read(records)
     lines = []
-    for dataset, by_digest in sorted(runs.items()):
-        if len(by_digest) < 2:
-            continue
-        numbers = sorted(tasks[dataset])
-        where = f"task{'s' if len(numbers) > 1 else ''} {', '.join(map(str, numbers))}"
-        whose = "; ".join(
-            f"{digest} for {', '.join(sorted(names))}"
-            for digest, names in sorted(by_digest.items(), key=lambda kv: sorted(kv[1]))
-        )
-        lines.append(f"{dataset} ({where}): {whose}")
+    for (dataset, episodes), digest in sorted(here.items()):
+        others = {d: names for d, names in read.get((dataset, episodes), {}).items() if d != digest}
+        if others:
+            held = f"{dataset} ({episodes} episodes) holds {digest} here"
+            lines.append(f"{held}; read {_who(others)}")
     return lines
 
 

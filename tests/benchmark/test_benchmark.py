@@ -91,6 +91,33 @@ def test_prepare_datasets_generates_only_the_missing_ones(tiny_umaze, monkeypatc
     assert "generating the pointmaze-medium expert dataset" in capsys.readouterr().out
 
 
+def test_runs_about_to_train_on_other_episodes_than_the_kept_ones_are_told(
+    tiny_umaze, tmp_path, capsys
+):
+    """Before training, a benchmark compares this machine's datasets with the episodes the
+    stream's finished runs read, so a run on a dataset made again is not found out an hour
+    later in its table."""
+    from hispo_pl.benchmark.configs import warn_of_other_episodes
+
+    stream = ["pointmaze-umaze-N[6]", "pointmaze-umaze-PO[6]"]  # the session's 6-episode dataset
+    here = tiny_umaze.content_digest()
+    kept = tmp_path / "kept"
+    for method, digest in (("hispo", "0123456789abcdef"), ("scn", here)):
+        results = _results([0.5, 0.9], [0.5, 0.9])
+        results.datasets = [{"dataset": "hispo/pointmaze-umaze-expert-v0", "episodes": 6}]
+        results.datasets[0]["digest"] = digest
+        (kept / method / "seed0").mkdir(parents=True)
+        RunDir(kept / method / "seed0").write_results(results)
+    warn_of_other_episodes("umaze", stream, [kept, tmp_path / "not-made-yet"])
+    said = capsys.readouterr().out
+    assert said.count("\n") == 1 and said.startswith("[benchmark] umaze: ")
+    assert f"pointmaze-umaze-expert-v0 (6 episodes) holds {here} here" in said
+    assert "read 0123456789abcdef for hispo seed 0." in said and "scn" not in said
+    (kept / "hispo").rename(tmp_path / "hispo")  # only runs that read these episodes
+    warn_of_other_episodes("umaze", stream, [kept])
+    assert capsys.readouterr().out == ""
+
+
 def test_plan_runs_builds_fit_commands(tmp_path):
     configs = benchmark_config_dir(tmp_path, ["hispo", "scn"])
     stream = bm.stream_config_path("pointmaze-1", configs)
@@ -312,7 +339,7 @@ def test_the_table_names_runs_that_trained_on_other_episodes(tmp_path, capsys):
     table = (tmp_path / "table.md").read_text()
     assert "## Runs that trained on other episodes" in table
     assert (
-        "- hispo/umaze-expert-v0 (tasks 1, 2): u1 for hispo seed 0, scn seed 0; u2 for scn seed 1"
+        "- hispo/umaze-expert-v0 (9 episodes): u1 for hispo seed 0, scn seed 0; u2 for scn seed 1"
         in table
     )
     for run_dir in (tmp_path / "runs").glob("*/seed*"):  # every run on the same episodes
