@@ -13,8 +13,8 @@ from ..config_files import config_root
 from ..errors import Interrupted, RunDirError
 from ..io import atomic_write_text, make_folder
 from . import plan
-from .configs import configured_value, datasets_needed, prepare_datasets, warn_of_other_episodes
-from .finished_runs import export_runs, refuse_foreign_export
+from .configs import configured_value, datasets_needed, prepare_datasets
+from .finished_runs import export_runs, refuse_foreign_export, warn_of_other_episodes
 from .launch import Reporter, run_env, run_local, run_ray
 from .parser import build_parser, cpu_count
 from .report import write_report

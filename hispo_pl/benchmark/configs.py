@@ -105,26 +105,3 @@ def episodes_here(stream: str | list[str]) -> dict[tuple[str, int], str]:
         if key not in here and dataset_exists(key[0]):
             here[key] = load_episodes(task).content_digest()
     return here
-
-
-def warn_of_other_episodes(name: str, stream: str | list[str] | None, kept: Sequence[Path]) -> None:
-    """Say before the runs start where this machine's datasets hold other episodes than the
-    finished runs of the stream under ``kept`` read (a dataset made again elsewhere can differ,
-    docs/data.md): the new runs would train on other data than those they are compared with."""
-    from ..errors import RunDirError
-    from .finished_runs import episodes_read, load_records, unlike_here
-
-    records = []
-    for folder in kept:
-        try:
-            records += load_records(Path(folder))[0] if Path(folder).is_dir() else []
-        except RunDirError:  # another stream's runs: not what these runs are compared with
-            continue
-    if not stream or not episodes_read(records):
-        return
-    for line in unlike_here(records, episodes_here(stream)):
-        print(
-            f"[benchmark] {name}: {line}. The runs starting now train on other episodes than "
-            "those, and the stream's table will list them apart (docs/data.md, \"Reproducing "
-            'a dataset")'
-        )

@@ -13,6 +13,7 @@ from ..io import copy_files, make_folder, real_folder, refuse_linked
 from ..metrics import METRICS, continual_metrics, mean_std
 from ..results import Decision, LaunchRecord, StreamResults, fwt_reference
 from ..rundir import RunDir
+from .configs import episodes_here
 from .plan import PLAN_FILE, RUNS_DIR, planned_stream, warn_provenance
 
 
@@ -239,6 +240,26 @@ def unlike_here(records: Sequence[RunRecord], here: dict[DatasetRead, str]) -> l
             held = f"{dataset} ({episodes} episodes) holds {digest} here"
             lines.append(f"{held}; read {_who(others)}")
     return lines
+
+
+def warn_of_other_episodes(name: str, stream: str | list[str] | None, kept: Sequence[Path]) -> None:
+    """Say before the runs start where this machine's datasets hold other episodes than the
+    finished runs of the stream under ``kept`` read (a dataset made again elsewhere can differ,
+    docs/data.md): the new runs would train on other data than those they are compared with."""
+    records = []
+    for folder in kept:
+        try:
+            records += load_records(Path(folder))[0] if Path(folder).is_dir() else []
+        except RunDirError:  # another stream's runs: not what these runs are compared with
+            continue
+    if not stream or not episodes_read(records):
+        return
+    for line in unlike_here(records, episodes_here(stream)):
+        print(
+            f"[benchmark] {name}: {line}. The runs starting now train on other episodes than "
+            "those, and the stream's table will list them apart (docs/data.md, \"Reproducing "
+            'a dataset")'
+        )
 
 
 def scratch_method_for(method: str, available: Iterable[str]) -> str | None:

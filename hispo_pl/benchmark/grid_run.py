@@ -145,7 +145,8 @@ def _run_cells(
     write_reports: Callable[[Sequence[str]], None] | None,
 ) -> int:
     """Run ``todo`` ``workers`` at a time, exporting each as it finishes; the failures."""
-    from .configs import configured_value, datasets_needed, prepare_datasets, warn_of_other_episodes
+    from .configs import configured_value, datasets_needed, prepare_datasets
+    from .finished_runs import warn_of_other_episodes
     from .launch import Reporter, run_env, run_local
     from .plan import pending_runs, provenance
 

@@ -97,7 +97,7 @@ def test_runs_about_to_train_on_other_episodes_than_the_kept_ones_are_told(
     """Before training, a benchmark compares this machine's datasets with the episodes the
     stream's finished runs read, so a run on a dataset made again is not found out an hour
     later in its table."""
-    from hispo_pl.benchmark.configs import warn_of_other_episodes
+    from hispo_pl.benchmark.finished_runs import warn_of_other_episodes
 
     stream = ["pointmaze-umaze-N[6]", "pointmaze-umaze-PO[6]"]  # the session's 6-episode dataset
     here = tiny_umaze.content_digest()
