@@ -13,7 +13,7 @@ from ..config_files import config_root
 from ..errors import Interrupted, RunDirError
 from ..io import atomic_write_text, make_folder
 from . import plan
-from .configs import configured_value, datasets_needed, prepare_datasets
+from .configs import prepare_datasets, runs_datasets
 from .finished_runs import export_runs, refuse_foreign_export, warn_of_other_episodes
 from .launch import Reporter, run_env, run_local, run_ray
 from .parser import build_parser, cpu_count
@@ -230,15 +230,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{len(todo)} to run with the {args.launcher} launcher, {args.num_threads} thread(s) "
         "each" + (f", {workers} at a time" if args.launcher == "local" else "")
     )
-    needed: dict[str, int] = {}
-    for run in todo:
-        for name, episodes in datasets_needed(run.configs, run.argv).items():
-            needed[name] = max(needed.get(name, 0), episodes)
-    prepare_datasets(needed)
-    if todo:
-        spec = configured_value(todo[0].configs, todo[0].argv, "data.stream")
-        kept = [out, *([Path(args.export)] if args.export else [])]
-        warn_of_other_episodes(stream_name, spec, kept)
+    prepare_datasets(runs_datasets(todo))
+    warn_of_other_episodes(stream_name, todo, [out, *([Path(args.export)] if args.export else [])])
     reporter = Reporter(total=len(runs), done=len(runs) - len(todo))
     env = run_env(args.num_threads)
     try:

@@ -81,6 +81,16 @@ def datasets_needed(configs: Sequence[Path], overrides: Sequence[str] = ()) -> d
     return needed
 
 
+def runs_datasets(runs: Sequence) -> dict[str, int]:
+    """:func:`datasets_needed` of every planned run (``configs`` and ``argv`` each), merged:
+    each local dataset with the most episodes any run reads of it."""
+    needed: dict[str, int] = {}
+    for run in runs:
+        for name, episodes in datasets_needed(run.configs, run.argv).items():
+            needed[name] = max(needed.get(name, 0), episodes)
+    return needed
+
+
 def prepare_datasets(needed: dict[str, int]) -> None:
     """Generate the missing local datasets here, once, before the runs start: runs that each
     generated a missing dataset on first use would race on the same files."""

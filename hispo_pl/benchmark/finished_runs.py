@@ -13,8 +13,8 @@ from ..io import copy_files, make_folder, real_folder, refuse_linked
 from ..metrics import METRICS, continual_metrics, mean_std
 from ..results import Decision, LaunchRecord, StreamResults, fwt_reference
 from ..rundir import RunDir
-from .configs import episodes_here
-from .plan import PLAN_FILE, RUNS_DIR, planned_stream, warn_provenance
+from .configs import configured_value, episodes_here
+from .plan import PLAN_FILE, RUNS_DIR, PlannedRun, planned_stream, warn_provenance
 
 
 @dataclass
@@ -242,10 +242,12 @@ def unlike_here(records: Sequence[RunRecord], here: dict[DatasetRead, str]) -> l
     return lines
 
 
-def warn_of_other_episodes(name: str, stream: str | list[str] | None, kept: Sequence[Path]) -> None:
+def warn_of_other_episodes(name: str, runs: Sequence[PlannedRun], kept: Sequence[Path]) -> None:
     """Say before the runs start where this machine's datasets hold other episodes than the
     finished runs of the stream under ``kept`` read (a dataset made again elsewhere can differ,
-    docs/data.md): the new runs would train on other data than those they are compared with."""
+    docs/data.md): ``runs``, the stream's runs about to train, would train on other data than
+    those they are compared with."""
+    stream = configured_value(runs[0].configs, runs[0].argv, "data.stream") if runs else None
     records = []
     for folder in kept:
         try:

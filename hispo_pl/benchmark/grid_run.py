@@ -145,7 +145,7 @@ def _run_cells(
     write_reports: Callable[[Sequence[str]], None] | None,
 ) -> int:
     """Run ``todo`` ``workers`` at a time, exporting each as it finishes; the failures."""
-    from .configs import configured_value, datasets_needed, prepare_datasets
+    from .configs import prepare_datasets, runs_datasets
     from .finished_runs import warn_of_other_episodes
     from .launch import Reporter, run_env, run_local
     from .plan import pending_runs, provenance
@@ -166,15 +166,10 @@ def _run_cells(
     for run in runs:  # finished in ``work`` but stopped before its export
         if run not in pending and run.results_path.exists():
             export(run, "finished before its export, exported to")
-    needed: dict[str, int] = {}
-    for run in pending:
-        for name, episodes in datasets_needed(run.configs, run.argv).items():
-            needed[name] = max(needed.get(name, 0), episodes)
-    prepare_datasets(needed)
+    prepare_datasets(runs_datasets(pending))
     for stream in dict.fromkeys(cells[r.run_dir].stream for r in pending):
-        first = next(r for r in pending if cells[r.run_dir].stream == stream)
-        spec = configured_value(first.configs, first.argv, "data.stream")
-        warn_of_other_episodes(stream, spec, [Path(root) / stream])
+        mine = [r for r in pending if cells[r.run_dir].stream == stream]
+        warn_of_other_episodes(stream, mine, [Path(root) / stream])
     reporter = Reporter(total=len(pending))
 
     def finished(run: PlannedRun, outcome: dict) -> None:

@@ -8,6 +8,7 @@ import io
 import json
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from helpers import BENCH_TINY, BENCH_TINY_OVERRIDES, benchmark_config_dir
@@ -99,7 +100,9 @@ def test_runs_about_to_train_on_other_episodes_than_the_kept_ones_are_told(
     later in its table."""
     from hispo_pl.benchmark.finished_runs import warn_of_other_episodes
 
-    stream = ["pointmaze-umaze-N[6]", "pointmaze-umaze-PO[6]"]  # the session's 6-episode dataset
+    config = tmp_path / "stream.yaml"  # two tasks of the session's 6-episode dataset
+    config.write_text("data:\n  stream:\n  - pointmaze-umaze-N[6]\n  - pointmaze-umaze-PO[6]\n")
+    about_to_train = [SimpleNamespace(configs=(config,), argv=())]
     here = tiny_umaze.content_digest()
     kept = tmp_path / "kept"
     for method, digest in (("hispo", "0123456789abcdef"), ("scn", here)):
@@ -108,13 +111,13 @@ def test_runs_about_to_train_on_other_episodes_than_the_kept_ones_are_told(
         results.datasets[0]["digest"] = digest
         (kept / method / "seed0").mkdir(parents=True)
         RunDir(kept / method / "seed0").write_results(results)
-    warn_of_other_episodes("umaze", stream, [kept, tmp_path / "not-made-yet"])
+    warn_of_other_episodes("umaze", about_to_train, [kept, tmp_path / "not-made-yet"])
     said = capsys.readouterr().out
     assert said.count("\n") == 1 and said.startswith("[benchmark] umaze: ")
     assert f"pointmaze-umaze-expert-v0 (6 episodes) holds {here} here" in said
     assert "read 0123456789abcdef for hispo seed 0." in said and "scn" not in said
     (kept / "hispo").rename(tmp_path / "hispo")  # only runs that read these episodes
-    warn_of_other_episodes("umaze", stream, [kept])
+    warn_of_other_episodes("umaze", about_to_train, [kept])
     assert capsys.readouterr().out == ""
 
 
